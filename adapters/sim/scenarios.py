@@ -1,0 +1,178 @@
+"""Named simulation scenarios: a workspace, a physics model, contacts and drifts.
+
+=====================  ===================================================================
+``free-space``         rigid body + free-space friction (Coulomb, viscous, Stribeck, wrist
+                       cable coupling); wide workspace; no seal, no contact.
+``free-space-seal``    the same with the instrument through a cannula seal.
+``trocar``             seal + body wall at the port (insufflated at 12 mmHg), the smaller
+                       workspace of work inside a phantom, slower motion, no contact.
+``trocar-contact``     ``trocar`` plus contact episodes: the tip grasps a compliant handle on
+                       a 6-axis force sensor (sensor channel recorded).
+``insufflation-change`` ``trocar`` with the pressure stepping from 12 to 15 mmHg at 40 % of
+                       the session, plus occasional contacts (sensor recorded).
+``instrument-drift``   ``trocar`` with seal friction ramping up 60 % and wrist friction up
+                       80 % over the session (wear), plus occasional contacts.
+=====================  ===================================================================
+
+Everything random (trajectory, contact times, noise) comes from one seed, so a scenario is
+reproducible to the byte.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import numpy as np
+
+from models.errors import ConfigError
+from models.physics.model import PhysicsModel
+from models.series import Session
+from adapters.sim.simulator import SimulatorConfig, simulate
+from adapters.sim.trajectory import FourierTrajectory, Workspace
+
+FREE_SPACE_WORKSPACE = Workspace(
+    lower=(-1.2, -0.75, 0.03, -2.5, -1.2, -1.2),
+    upper=(1.2, 0.75, 0.22, 2.5, 1.2, 1.2),
+)
+#: Inside a phantom: the shaft pivots through the port, the tip stays in a smaller volume.
+TROCAR_WORKSPACE = Workspace(
+    lower=(-0.6, -0.45, 0.07, -1.8, -1.0, -1.0),
+    upper=(0.6, 0.45, 0.19, 1.8, 1.0, 1.0),
+)
+
+FREE_SPACE_EFFECTS: list[dict[str, Any]] = [
+    {"name": "coulomb_friction"},
+    {"name": "viscous_friction"},
+    {"name": "stribeck_friction"},
+    {"name": "cable_coupling"},
+]
+SEAL = {"name": "seal_friction"}
+BODY_WALL = {"name": "body_wall"}
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """What a scenario fixes; ``build`` turns it into a model, trajectory and contacts."""
+
+    name: str
+    description: str
+    workspace: Workspace
+    effects: Callable[[float], list[dict[str, Any]]]      # duration -> effect specs
+    freq_hz: tuple[float, float] = (0.03, 0.3)
+    contact_every_s: float | None = None                   # mean gap between contacts
+    force_sensor: bool = False
+
+
+def _free(_: float) -> list[dict[str, Any]]:
+    return copy.deepcopy(FREE_SPACE_EFFECTS)
+
+
+def _seal(_: float) -> list[dict[str, Any]]:
+    return _free(_) + [dict(SEAL)]
+
+
+def _trocar(_: float) -> list[dict[str, Any]]:
+    return _seal(_) + [dict(BODY_WALL)]
+
+
+def _insufflation(duration: float) -> list[dict[str, Any]]:
+    return _trocar(duration) + [{
+        "name": "drift", "id": "insufflation_step",
+        "params": {"target": "body_wall", "param": "pressure_mmhg", "kind": "step",
+                   "factor": 15.0 / 12.0, "t_start_s": round(0.4 * duration, 3)},
+    }]
+
+
+def _wear(duration: float) -> list[dict[str, Any]]:
+    start, end = round(0.1 * duration, 3), round(0.9 * duration, 3)
+    return _trocar(duration) + [
+        {"name": "drift", "id": "seal_wear",
+         "params": {"target": "seal_friction", "param": "fc", "kind": "ramp", "factor": 1.6,
+                    "t_start_s": start, "t_end_s": end}},
+        {"name": "drift", "id": "wrist_wear",
+         "params": {"target": "cable_coupling", "param": "motor_fc", "kind": "ramp",
+                    "factor": 1.8, "t_start_s": start, "t_end_s": end}},
+    ]
+
+
+SCENARIOS: dict[str, Scenario] = {s.name: s for s in (
+    Scenario("free-space", "free motion, no seal, wide workspace", FREE_SPACE_WORKSPACE, _free,
+             freq_hz=(0.05, 0.4)),
+    Scenario("free-space-seal", "free motion through a cannula seal", FREE_SPACE_WORKSPACE, _seal,
+             freq_hz=(0.05, 0.4)),
+    Scenario("trocar", "seal and body wall inside a phantom, no contact", TROCAR_WORKSPACE,
+             _trocar, freq_hz=(0.02, 0.2)),
+    Scenario("trocar-contact", "trocar with grasped-handle contacts on a force sensor",
+             TROCAR_WORKSPACE, _trocar, freq_hz=(0.02, 0.2), contact_every_s=8.0,
+             force_sensor=True),
+    Scenario("insufflation-change", "trocar; pressure steps 12 -> 15 mmHg at 40 %",
+             TROCAR_WORKSPACE, _insufflation, freq_hz=(0.02, 0.2), contact_every_s=20.0,
+             force_sensor=True),
+    Scenario("instrument-drift", "trocar; seal +60 % and wrist +80 % friction (wear)",
+             TROCAR_WORKSPACE, _wear, freq_hz=(0.02, 0.2), contact_every_s=20.0,
+             force_sensor=True),
+)}
+
+
+def contact_episodes(rng: np.random.Generator, duration_s: float, every_s: float,
+                     length_s: tuple[float, float] = (1.5, 4.0)) -> list[list[float]]:
+    """Random contact intervals: gaps ~ exponential(mean ``every_s``), lengths uniform [s]."""
+    episodes, t = [], rng.exponential(every_s) + 1.0
+    while True:
+        length = rng.uniform(*length_s)
+        if t + length + 0.5 > duration_s:
+            return episodes
+        episodes.append([round(t, 3), round(t + length, 3)])
+        t += length + 1.0 + rng.exponential(every_s)
+
+
+def scenario_model(scenario: Scenario, duration_s: float, episodes: list[list[float]],
+                   model: PhysicsModel | None) -> PhysicsModel:
+    """The scenario's physics model, or ``model`` with the scenario's contacts put in.
+
+    A user model replaces the scenario's physics; if it has an ``external_contact`` effect
+    without episodes, it receives the scenario's.
+    """
+    if model is None:
+        effects = scenario.effects(duration_s)
+        if episodes:
+            effects.append({"name": "external_contact", "params": {"episodes": episodes}})
+        return PhysicsModel.from_dict({"description": f"scenario {scenario.name}",
+                                       "effects": effects})
+    data = model.to_dict()
+    for spec in data["effects"]:
+        if spec["name"] == "external_contact" and not spec["params"].get("episodes"):
+            spec["params"]["episodes"] = episodes
+    return PhysicsModel.from_dict(data)
+
+
+def run_scenario(name: str, duration_s: float, seed: int, model: PhysicsModel | None = None,
+                 config: SimulatorConfig | None = None) -> Session:
+    """Simulate scenario ``name`` for ``duration_s`` seconds with ``seed``."""
+    try:
+        scenario = SCENARIOS[name]
+    except KeyError:
+        raise ConfigError(f"unknown scenario {name!r}; choose one of {sorted(SCENARIOS)}") from None
+    if not duration_s > 0:
+        raise ConfigError(f"duration must be > 0 s, got {duration_s}")
+    root = np.random.SeedSequence(seed)
+    traj_seed, contact_seed, sensor_seed = root.spawn(3)
+    trajectory = FourierTrajectory(scenario.workspace, np.random.default_rng(traj_seed),
+                                   duration_s, freq_hz=scenario.freq_hz)
+    episodes = (contact_episodes(np.random.default_rng(contact_seed), duration_s,
+                                 scenario.contact_every_s) if scenario.contact_every_s else [])
+    physics = scenario_model(scenario, duration_s, episodes, model)
+    metadata = {
+        "scenario": {
+            "name": scenario.name, "description": scenario.description,
+            "duration_s": duration_s, "seed": seed,
+            "workspace": {"lower": list(scenario.workspace.lower),
+                          "upper": list(scenario.workspace.upper)},
+            "freq_hz": list(scenario.freq_hz), "contact_episodes": episodes,
+            "force_sensor": scenario.force_sensor, "custom_model": model is not None,
+        },
+    }
+    return simulate(physics, trajectory, duration_s, sensor_seed, config,
+                    force_sensor=scenario.force_sensor, metadata=metadata)

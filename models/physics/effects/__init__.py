@@ -1,0 +1,25 @@
+"""The effect library: named, parameterised, composable joint-torque contributions.
+
+Importing this package registers every effect in :data:`EFFECTS` under the name model files
+use: ``coulomb_friction``, ``viscous_friction``, ``stribeck_friction``, ``joint_offset``,
+``spring``, ``seal_friction``, ``body_wall``, ``payload_mass``, ``cable_coupling``, ``drift``,
+``external_contact``.
+"""
+
+from models.physics.effects import (  # noqa: F401  (imported to register)
+    body_wall,
+    contact,
+    coupling,
+    drift,
+    friction,
+    payload,
+    static,
+)
+from models.physics.effects.base import EFFECTS, Effect, EffectParams, Motion, register
+
+try:  # the seal model lives in its own module
+    from models.physics.effects import seal  # noqa: F401
+except ImportError:  # pragma: no cover - only while the module is being written
+    pass
+
+__all__ = ["EFFECTS", "Effect", "EffectParams", "Motion", "register"]

@@ -1,0 +1,128 @@
+"""The ``wrenchd`` command line.
+
+Sub-commands:
+  simulate   run a simulator scenario and write the session to MCAP
+  serve      stream the simulated PSM over zenoh and record the session (embedded default)
+  inspect    summarise an MCAP session (topics, samples, truncation)
+  effects    list the effect vocabulary of model files, with parameters and defaults
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+from models.errors import WrenchdError
+
+
+def _cmd_simulate(args: argparse.Namespace) -> int:
+    from adapters.mcap_session import write_session
+    from adapters.sim.scenarios import run_scenario
+    from adapters.sim.simulator import SimulatorConfig
+    from models.physics.model import PhysicsModel
+
+    model = PhysicsModel.load(args.model) if args.model else None
+    config = SimulatorConfig(internal_rate_hz=args.internal_rate, publish_rate_hz=args.rate)
+    start = time.perf_counter()
+    session = run_scenario(args.scenario, args.duration, args.seed, model=model, config=config)
+    simulated = time.perf_counter()
+    Path(args.output).parent.mkdir(parents=True, exist_ok=True)
+    write_session(args.output, session)
+    done = time.perf_counter()
+    n = len(session.joint_states)
+    print(f"{args.scenario}: {args.duration:g} s, seed {args.seed}, {n} samples at "
+          f"{args.rate:g} Hz (internal {args.internal_rate:g} Hz) -> {args.output}")
+    print(f"simulate {simulated - start:.1f} s, write {done - simulated:.1f} s, "
+          f"total {done - start:.1f} s, {Path(args.output).stat().st_size / 1e6:.1f} MB")
+    return 0
+
+
+def _cmd_inspect(args: argparse.Namespace) -> int:
+    from adapters.mcap_session import read_session_report
+
+    session, info = read_session_report(args.session)
+    js = session.joint_states
+    out = {
+        "file": str(args.session),
+        "samples": len(js),
+        "duration_s": float(js.t[-1] - js.t[0]) if len(js) else 0.0,
+        "rate_hz": js.rate_hz,
+        "truncated": info.truncated,
+        "messages": info.messages,
+        "truth": session.truth is not None,
+        "effects": sorted(session.truth.effects) if session.truth is not None else [],
+        "scenario": (session.metadata.get("scenario") or {}).get("name"),
+    }
+    print(json.dumps(out, indent=2))
+    return 0
+
+
+def _cmd_effects(args: argparse.Namespace) -> int:
+    from models.physics.effects import EFFECTS
+
+    for name, cls in sorted(EFFECTS.items()):
+        doc = (cls.__doc__ or "").strip().splitlines()[0]
+        print(f"{name}: {doc}")
+        for field, info in cls.Params.model_fields.items():
+            default = "required" if info.is_required() else repr(info.default)
+            print(f"    {field} = {default}  # {info.description or ''}")
+    return 0
+
+
+def _cmd_serve(args: argparse.Namespace) -> int:
+    from service.stream import serve_simulated
+
+    return serve_simulated(scenario=args.scenario, seed=args.seed, duration_s=args.duration,
+                           out_dir=Path(args.out_dir), arm=args.arm, rate_hz=args.rate)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from adapters.sim.scenarios import SCENARIOS
+
+    parser = argparse.ArgumentParser(prog="wrenchd", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    sim = sub.add_parser("simulate", help="simulate a scenario into an MCAP session")
+    sim.add_argument("--scenario", required=True, choices=sorted(SCENARIOS))
+    sim.add_argument("--duration", type=float, default=60.0, help="session length [s]")
+    sim.add_argument("--seed", type=int, default=0)
+    sim.add_argument("--model", help="physics model JSON replacing the scenario's physics")
+    sim.add_argument("--rate", type=float, default=200.0, help="published rate [Hz]")
+    sim.add_argument("--internal-rate", type=float, default=1000.0, help="internal step [Hz]")
+    sim.add_argument("-o", "--output", required=True, help="output .mcap")
+    sim.set_defaults(func=_cmd_simulate)
+
+    ins = sub.add_parser("inspect", help="summarise an MCAP session")
+    ins.add_argument("session")
+    ins.set_defaults(func=_cmd_inspect)
+
+    eff = sub.add_parser("effects", help="list the effects a model file can use")
+    eff.set_defaults(func=_cmd_effects)
+
+    srv = sub.add_parser("serve", help="stream the simulated PSM over zenoh and record it")
+    srv.add_argument("--scenario", default="trocar-contact", choices=sorted(SCENARIOS))
+    srv.add_argument("--seed", type=int, default=0)
+    srv.add_argument("--duration", type=float, default=None,
+                     help="stop after this many seconds (default: until Ctrl-C)")
+    srv.add_argument("--arm", default="PSM1")
+    srv.add_argument("--rate", type=float, default=200.0, help="published rate [Hz]")
+    srv.add_argument("--out-dir", default="sessions", help="where the MCAP session goes")
+    srv.set_defaults(func=_cmd_serve)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except WrenchdError as exc:
+        print(f"wrenchd: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

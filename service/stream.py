@@ -1,0 +1,91 @@
+"""Embedded default of ``wrenchd serve``: the simulated PSM streamed over zenoh, recorded.
+
+The simulated arm publishes its joint states in real time on ``dvrk/{arm}/measured_js``
+(JSON, ``sensor_msgs/JointState`` fields) and the whole session, with the simulator's ground
+truth, is recorded to MCAP, flushed every second. The estimator daemon of the service issue
+subscribes to the same key.
+
+The scenario is simulated in blocks of up to ten minutes; each new block starts a fresh
+trajectory (the next seed), with time continuing.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import signal
+import time
+from pathlib import Path
+
+from adapters.mcap_session import SessionWriter
+from adapters.sim.scenarios import run_scenario
+from adapters.sim.simulator import SimulatorConfig
+from adapters.zenoh_io import ZenohConfig, joint_state_payload, open_session
+
+BLOCK_S = 600.0
+
+
+
+
+def serve_simulated(scenario: str, seed: int, duration_s: float | None, out_dir: Path,
+                    arm: str = "PSM1", rate_hz: float = 200.0,
+                    zenoh: ZenohConfig | None = None) -> int:
+    """Stream ``scenario`` in real time until ``duration_s`` or SIGINT/SIGTERM. Returns 0."""
+    stop = {"flag": False}
+
+    def _stop(signum, _frame):
+        stop["flag"] = True
+
+    old = {s: signal.signal(s, _stop) for s in (signal.SIGINT, signal.SIGTERM)}
+    out_dir.mkdir(parents=True, exist_ok=True)
+    path = out_dir / f"{arm}-{scenario}-seed{seed}.mcap"
+    key = f"dvrk/{arm}/measured_js"
+    session = open_session(zenoh or ZenohConfig())
+    published = 0
+    try:
+        publisher = session.declare_publisher(key)
+        with SessionWriter(path, metadata={
+                "source": "wrenchd serve (simulated PSM)", "arm": arm,
+                "scenario": {"name": scenario, "seed": seed, "block_s": BLOCK_S}}) as writer:
+            print(f"wrenchd: simulated {arm} ({scenario}) publishing on '{key}' at "
+                  f"{rate_hz:g} Hz, recording to {path}", flush=True)
+            t0_wall = time.monotonic()
+            offset, block = 0.0, 0
+            while not stop["flag"]:
+                length = BLOCK_S if duration_s is None else min(BLOCK_S, duration_s - offset)
+                if length <= 0:
+                    break
+                sim = run_scenario(scenario, length, seed + block,
+                                   config=SimulatorConfig(publish_rate_hz=rate_hz))
+                js = dataclasses.replace(sim.joint_states, t=sim.joint_states.t + offset)
+                truth = sim.truth
+                start = 0
+                for i in range(len(js)):
+                    due = t0_wall + js.t[i]
+                    delay = due - time.monotonic()
+                    if delay > 0:
+                        time.sleep(delay)
+                    if stop["flag"]:
+                        break
+                    publisher.put(joint_state_payload(js.t[i], js.names, js.position[i],
+                                                      js.velocity[i], js.effort[i]))
+                    published += 1
+                    if js.t[i] - js.t[start] >= 1.0:           # record and report each second
+                        writer.write_joint_states(js.slice(start, i + 1),
+                                                  truth.slice(start, i + 1))
+                        start = i + 1
+                        print(f"t={js.t[i]:7.1f} s  published {published}  "
+                              f"contact={bool(truth.in_contact[i])}", flush=True)
+                stop_at = i + 1 if stop["flag"] else len(js)
+                if stop_at > start:
+                    writer.write_joint_states(js.slice(start, stop_at),
+                                              truth.slice(start, stop_at))
+                offset += length
+                block += 1
+        publisher.undeclare()
+    finally:
+        session.close()
+        for s, handler in old.items():
+            signal.signal(s, handler)
+    print(f"wrenchd: stopped after {published} samples; session in {path}", flush=True)
+    return 0
+
