@@ -49,11 +49,14 @@ class FourierTrajectory:
         self.freq = rng.uniform(lo, hi, (N_JOINTS, harmonics))                   # [Hz]
         self.amp = rng.uniform(0.3, 1.0, (N_JOINTS, harmonics)) * (lo / self.freq)
         self.phase = rng.uniform(0, 2 * np.pi, (N_JOINTS, harmonics))
-        # Normalise by the excursion actually reached over the session (20 Hz scan is far
-        # finer than the fastest component's period of >= 3 s).
-        scan = np.arange(0.0, max(duration_s, 1e-3), 0.05)
+        # Normalise by the excursion reached over the session, scanned every 50 ms; between
+        # scan points a joint can move at most max|velocity| * 25 ms further, so adding that
+        # bound guarantees the trajectory never leaves the box.
+        scan_dt = 0.05
+        scan = np.arange(0.0, max(duration_s, 1e-3) + scan_dt, scan_dt)
         peak = np.abs(self._unit(scan)[0]).max(axis=0)
-        self.scale = workspace.half_range / np.maximum(peak, 1e-9)
+        speed_bound = np.sum(self.amp * 2 * np.pi * self.freq, axis=1)
+        self.scale = workspace.half_range / np.maximum(peak + speed_bound * scan_dt / 2, 1e-9)
 
     def _unit(self, t: np.ndarray):
         w = 2 * np.pi * self.freq                                 # (6, K) [rad/s]

@@ -13,8 +13,8 @@ The drive supplies ``tau_j = -F . d(x)/dq_j`` for the material point ``x = s u(q
 pitch, since the force is perpendicular to the shaft (no work along insertion or roll).
 
 Magnitudes are assumptions in the range reported for abdominal-wall port forces (a few N at
-the port for clinical pivoting; insufflation 8 to 15 mmHg): ``k0`` 150 N/m, ``k_p``
-30 N/m per mmHg, incision 2 cm above the RCM along the shaft and 3 mm to the side.
+the port for clinical pivoting; insufflation 8 to 16 mmHg): ``k0`` 100 N/m, ``k_p``
+40 N/m per mmHg, incision 3 cm above the RCM along the shaft and 3 mm to the side.
 """
 
 from __future__ import annotations
@@ -27,11 +27,11 @@ from models.physics.effects.base import Effect, EffectParams, Motion, register
 
 class BodyWallParams(EffectParams):
     incision_m: tuple[float, float, float] = Field(
-        default=(0.003, -0.002, 0.02),
+        default=(0.003, -0.002, 0.03),
         description="incision point relative to the RCM, base axes [m]",
     )
-    k0_n_per_m: float = Field(default=150.0, ge=0.0, description="stiffness at 0 mmHg [N/m]")
-    k_per_mmhg: float = Field(default=30.0, ge=0.0, description="stiffening [N/m per mmHg]")
+    k0_n_per_m: float = Field(default=100.0, ge=0.0, description="stiffness at 0 mmHg [N/m]")
+    k_per_mmhg: float = Field(default=40.0, ge=0.0, description="stiffening [N/m per mmHg]")
     pressure_mmhg: float = Field(default=12.0, ge=0.0, le=30.0,
                                  description="insufflation pressure [mmHg]")
     damping_ns_per_m: float = Field(default=5.0, ge=0.0, description="lateral damping [N s/m]")

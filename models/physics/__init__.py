@@ -1,0 +1,1 @@
+"""PSM physics: kinematics, rigid-body dynamics, effects, model files."""
