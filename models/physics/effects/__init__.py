@@ -13,13 +13,9 @@ from models.physics.effects import (  # noqa: F401  (imported to register)
     drift,
     friction,
     payload,
+    seal,
     static,
 )
 from models.physics.effects.base import EFFECTS, Effect, EffectParams, Motion, register
-
-try:  # the seal model lives in its own module
-    from models.physics.effects import seal  # noqa: F401
-except ImportError:  # pragma: no cover - only while the module is being written
-    pass
 
 __all__ = ["EFFECTS", "Effect", "EffectParams", "Motion", "register"]
