@@ -218,3 +218,13 @@ def test_model_file_round_trip_and_errors(tmp_path):
             "target": "body_wall", "param": "pressure"}}]})
     with pytest.raises(ConfigError, match="cannot read"):
         PhysicsModel.load(tmp_path / "missing.json")
+
+
+def test_example_model_files_load():
+    from pathlib import Path
+
+    examples = sorted((Path(__file__).parents[3] / "deploy" / "models").glob("*.json"))
+    assert examples
+    for path in examples:
+        model = PhysicsModel.load(path)
+        assert model.effects, path
