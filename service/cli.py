@@ -17,6 +17,9 @@ from pathlib import Path
 
 from models.errors import WrenchdError
 
+#: Loopback by default: nothing leaves the machine unless the user says so.
+DEFAULT_LISTEN = "tcp/127.0.0.1:7447"
+
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
     from adapters.mcap_session import write_session
@@ -73,10 +76,14 @@ def _cmd_effects(args: argparse.Namespace) -> int:
 
 
 def _cmd_serve(args: argparse.Namespace) -> int:
+    from adapters.zenoh_io import ZenohConfig
     from service.stream import serve_simulated
 
+    listen = args.listen if args.listen is not None else ([] if args.connect else [DEFAULT_LISTEN])
+    zenoh = ZenohConfig(mode=args.mode, listen=listen, connect=args.connect or [])
     return serve_simulated(scenario=args.scenario, seed=args.seed, duration_s=args.duration,
-                           out_dir=Path(args.out_dir), arm=args.arm, rate_hz=args.rate)
+                           out_dir=Path(args.out_dir), arm=args.arm, rate_hz=args.rate,
+                           zenoh=zenoh)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -111,6 +118,12 @@ def build_parser() -> argparse.ArgumentParser:
     srv.add_argument("--arm", default="PSM1")
     srv.add_argument("--rate", type=float, default=200.0, help="published rate [Hz]")
     srv.add_argument("--out-dir", default="sessions", help="where the MCAP session goes")
+    srv.add_argument("--mode", default="peer", choices=["peer", "client", "router"],
+                     help="zenoh mode")
+    srv.add_argument("--listen", action="append", metavar="ENDPOINT",
+                     help="zenoh endpoint to listen on (repeatable; default tcp/127.0.0.1:7447)")
+    srv.add_argument("--connect", action="append", metavar="ENDPOINT",
+                     help="zenoh endpoint to connect to (repeatable)")
     srv.set_defaults(func=_cmd_serve)
     return parser
 

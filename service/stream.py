@@ -48,7 +48,7 @@ def serve_simulated(scenario: str, seed: int, duration_s: float | None, out_dir:
                 "scenario": {"name": scenario, "seed": seed, "block_s": BLOCK_S}}) as writer:
             print(f"wrenchd: simulated {arm} ({scenario}) publishing on '{key}' at "
                   f"{rate_hz:g} Hz, recording to {path}", flush=True)
-            t0_wall = time.monotonic()
+            t0_wall = None
             offset, block = 0.0, 0
             while not stop["flag"]:
                 length = BLOCK_S if duration_s is None else min(BLOCK_S, duration_s - offset)
@@ -58,10 +58,11 @@ def serve_simulated(scenario: str, seed: int, duration_s: float | None, out_dir:
                                    config=SimulatorConfig(publish_rate_hz=rate_hz))
                 js = dataclasses.replace(sim.joint_states, t=sim.joint_states.t + offset)
                 truth = sim.truth
-                start = 0
+                if t0_wall is None:                     # the clock starts with the first sample
+                    t0_wall = time.monotonic()
+                start, sent = 0, 0              # sent: samples of this block published
                 for i in range(len(js)):
-                    due = t0_wall + js.t[i]
-                    delay = due - time.monotonic()
+                    delay = t0_wall + js.t[i] - time.monotonic()
                     if delay > 0:
                         time.sleep(delay)
                     if stop["flag"]:
@@ -69,16 +70,14 @@ def serve_simulated(scenario: str, seed: int, duration_s: float | None, out_dir:
                     publisher.put(joint_state_payload(js.t[i], js.names, js.position[i],
                                                       js.velocity[i], js.effort[i]))
                     published += 1
+                    sent = i + 1
                     if js.t[i] - js.t[start] >= 1.0:           # record and report each second
-                        writer.write_joint_states(js.slice(start, i + 1),
-                                                  truth.slice(start, i + 1))
-                        start = i + 1
+                        writer.write_joint_states(js.slice(start, sent), truth.slice(start, sent))
+                        start = sent
                         print(f"t={js.t[i]:7.1f} s  published {published}  "
                               f"contact={bool(truth.in_contact[i])}", flush=True)
-                stop_at = i + 1 if stop["flag"] else len(js)
-                if stop_at > start:
-                    writer.write_joint_states(js.slice(start, stop_at),
-                                              truth.slice(start, stop_at))
+                if sent > start:                                # what was published, no more
+                    writer.write_joint_states(js.slice(start, sent), truth.slice(start, sent))
                 offset += length
                 block += 1
         publisher.undeclare()
