@@ -46,8 +46,6 @@ def serve_simulated(scenario: str, seed: int, duration_s: float | None, out_dir:
         with SessionWriter(path, metadata={
                 "source": "wrenchd serve (simulated PSM)", "arm": arm,
                 "scenario": {"name": scenario, "seed": seed, "block_s": BLOCK_S}}) as writer:
-            print(f"wrenchd: simulated {arm} ({scenario}) publishing on '{key}' at "
-                  f"{rate_hz:g} Hz, recording to {path}", flush=True)
             t0_wall = None
             offset, block = 0.0, 0
             while not stop["flag"]:
@@ -59,6 +57,8 @@ def serve_simulated(scenario: str, seed: int, duration_s: float | None, out_dir:
                 js = dataclasses.replace(sim.joint_states, t=sim.joint_states.t + offset)
                 truth = sim.truth
                 if t0_wall is None:                     # the clock starts with the first sample
+                    print(f"wrenchd: simulated {arm} ({scenario}) publishing on '{key}' at "
+                          f"{rate_hz:g} Hz, recording to {path}", flush=True)
                     t0_wall = time.monotonic()
                 start, sent = 0, 0              # sent: samples of this block published
                 for i in range(len(js)):
