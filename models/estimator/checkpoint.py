@@ -1,0 +1,128 @@
+"""Self-describing checkpoints of the estimator's networks (the only file I/O of the package).
+
+A checkpoint is one ``torch.save``'d dict of plain values and tensors::
+
+    {"format": "wrenchd.estimator", "version": 1, "kind": "free_space" | "corr" | "xfer",
+     "config": JSON string {"model": {...}, "train": {...} or null},
+     "state_dict": {name: tensor}, "dtype": "float32" | "float64",
+     "data": {...}, "validation": {...}}
+
+It is read back with ``torch.load(weights_only=True)``: a file holding anything but plain
+containers, numbers, strings and tensors (a pickled object) is refused by the loader before
+any of it runs, and anything that is not this dict is refused after.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import pickle
+from dataclasses import dataclass
+from typing import Any
+
+import torch
+from pydantic import BaseModel, ValidationError
+
+from models.errors import ConfigError
+from models.estimator.correction import Corr, CorrConfig, Xfer, XferConfig
+from models.estimator.free_space import FreeSpaceConfig, FreeSpaceModel
+from models.estimator.training import TrainConfig, TrainResult
+
+FORMAT = "wrenchd.estimator"
+VERSION = 1
+KINDS: dict[str, tuple[type[BaseModel], type[torch.nn.Module]]] = {
+    "free_space": (FreeSpaceConfig, FreeSpaceModel),
+    "corr": (CorrConfig, Corr),
+    "xfer": (XferConfig, Xfer),
+}
+_DTYPES = {"float32": torch.float32, "float64": torch.float64}
+
+
+@dataclass(frozen=True)
+class Checkpoint:
+    """A loaded checkpoint: the rebuilt model (eval mode) and what was recorded with it."""
+
+    kind: str
+    model: torch.nn.Module
+    train_config: TrainConfig | None
+    data: dict[str, Any]
+    validation: dict[str, Any]
+    version: int
+
+
+def _kind_of(model: torch.nn.Module) -> str:
+    for kind, (_, cls) in KINDS.items():
+        if type(model) is cls:
+            return kind
+    raise ConfigError(f"cannot checkpoint a {type(model).__name__}; expected one of "
+                      f"{[c.__name__ for _, c in KINDS.values()]}")
+
+
+def _plain(value: Any, what: str) -> Any:
+    try:
+        return json.loads(json.dumps(value if value is not None else {}))
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"{what} must be JSON-serialisable: {exc}") from exc
+
+
+def save_checkpoint(path: str | os.PathLike, model: torch.nn.Module,
+                    train_config: TrainConfig | None = None, data: dict[str, Any] | None = None,
+                    validation: dict[str, Any] | None = None) -> None:
+    """Write ``model`` with its configs, data description and validation score to ``path``."""
+    kind = _kind_of(model)
+    dtype = next(model.buffers()).dtype
+    config = {"model": model.config.model_dump(mode="json"),
+              "train": None if train_config is None else train_config.model_dump(mode="json")}
+    payload = {
+        "format": FORMAT, "version": VERSION, "kind": kind, "config": json.dumps(config),
+        "state_dict": {k: v.detach().cpu().clone() for k, v in model.state_dict().items()},
+        "dtype": str(dtype).removeprefix("torch."),
+        "data": _plain(data, "data"), "validation": _plain(validation, "validation"),
+    }
+    torch.save(payload, os.fspath(path))
+
+
+def save_result(path: str | os.PathLike, result: TrainResult) -> None:
+    """Write a :class:`TrainResult` as a checkpoint."""
+    save_checkpoint(path, result.model, result.train_config, result.data, result.validation)
+
+
+def load_checkpoint(path: str | os.PathLike) -> Checkpoint:
+    """Read and rebuild a checkpoint written by :func:`save_checkpoint`.
+
+    Raises:
+        ConfigError: the file is unreadable, holds pickled objects, is not a wrenchd estimator
+            checkpoint, has another version, or its weights do not fit its config.
+    """
+    where = os.fspath(path)
+    try:
+        payload = torch.load(where, map_location="cpu", weights_only=True)
+    except FileNotFoundError as exc:
+        raise ConfigError(f"{where}: no such checkpoint") from exc
+    except (pickle.UnpicklingError, RuntimeError, EOFError, ValueError, OSError) as exc:
+        raise ConfigError(f"{where}: refused, not a safe wrenchd checkpoint "
+                          f"(torch.load weights_only): {exc}") from exc
+    if not isinstance(payload, dict) or payload.get("format") != FORMAT:
+        raise ConfigError(f"{where}: refused, not a wrenchd estimator checkpoint "
+                          f"(got {type(payload).__name__})")
+    if payload.get("version") != VERSION:
+        raise ConfigError(f"{where}: checkpoint version {payload.get('version')!r}, "
+                          f"this wrenchd reads version {VERSION}")
+    kind, dtype = payload.get("kind"), _DTYPES.get(payload.get("dtype"))
+    if kind not in KINDS or dtype is None:
+        raise ConfigError(f"{where}: unknown kind {kind!r} or dtype {payload.get('dtype')!r}")
+    config_cls, model_cls = KINDS[kind]
+    try:
+        config = json.loads(payload["config"])
+        model = model_cls(config_cls(**config["model"])).to(dtype)
+        train = None if config.get("train") is None else TrainConfig(**config["train"])
+        state = payload["state_dict"]
+        if not (isinstance(state, dict)
+                and all(isinstance(v, torch.Tensor) for v in state.values())):
+            raise TypeError("state_dict must map names to tensors")
+        model.load_state_dict(state, strict=True)
+    except (KeyError, TypeError, ValueError, RuntimeError, ValidationError) as exc:
+        raise ConfigError(f"{where}: invalid checkpoint content: {exc}") from exc
+    model.eval()
+    return Checkpoint(kind, model, train, dict(payload.get("data") or {}),
+                      dict(payload.get("validation") or {}), VERSION)

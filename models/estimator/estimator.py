@@ -1,0 +1,177 @@
+"""The two-step estimator: joint states and measured efforts in, tip wrench out.
+
+``predicted = step 2(step 1(q, dq))``, ``external = measured - predicted``,
+``wrench = damped (J^T)^-1 external`` (Wu, Yilmaz, Kazanzides, Tumerdem, arXiv 2012.01479).
+Step 2 is optional: a :class:`~models.estimator.correction.Corr` adds a correction to the
+step-1 prediction; an :class:`~models.estimator.correction.Xfer` replaces it (it contains the
+step-1 LSTMs, frozen).
+
+One object serves two drivers with the same numbers: :meth:`TwoStepEstimator.step_one` for the
+service (one sample at a time, NumPy kernels) and :meth:`TwoStepEstimator.predict_batch` for
+offline use (torch over whole segments). Both restart the recurrent state and the history
+window at the first sample, after a gap longer than ``max_gap_s`` and when time does not
+advance.
+
+The kernels are snapshots of the networks taken at construction: call :meth:`refresh` after
+changing weights.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from models.errors import ConfigError, DataError
+from models.estimator.correction import Corr, HistoryWindow, Xfer
+from models.estimator.features import segments
+from models.estimator.free_space import FreeSpaceModel
+from models.estimator.wrench import WrenchMap, WrenchMapConfig
+from models.series import N_JOINTS, JointStates
+
+
+class EstimatorConfig(BaseModel):
+    """Streaming behaviour of the estimator."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    max_gap_s: float = Field(default=0.05, gt=0.0,
+                             description="a longer time step restarts the state [s]")
+    wrench: WrenchMapConfig = Field(default_factory=WrenchMapConfig)
+
+
+@dataclass(frozen=True)
+class EstimatorOutput:
+    """One sample's estimate.
+
+    Attributes:
+        t: sample time [s].
+        predicted_torque: (6,) torque of the robot's own motion [N m; N].
+        external_torque: (6,) measured minus predicted [N m; N].
+        wrench: (6,) tip wrench [N, N m], base axes, torque about the tip.
+        restarted: whether the state was restarted at this sample.
+    """
+
+    t: float
+    predicted_torque: np.ndarray
+    external_torque: np.ndarray
+    wrench: np.ndarray
+    restarted: bool
+
+
+@dataclass(frozen=True)
+class EstimatorBatch:
+    """Estimates of a series: (N, 6) arrays as in :class:`EstimatorOutput`, (N,) restarts."""
+
+    t: np.ndarray
+    predicted_torque: np.ndarray
+    external_torque: np.ndarray
+    wrench: np.ndarray
+    restarted: np.ndarray
+
+
+class TwoStepEstimator:
+    """Step 1 + optional step 2 + wrench map.
+
+    Args:
+        free_space: the step-1 model.
+        correction: None, a :class:`Corr` or an :class:`Xfer` built on ``free_space``.
+        config: gap handling and damping.
+        wrench_map: a prepared map (else built from ``config.wrench``).
+    Raises:
+        ConfigError: an ``Xfer`` whose frozen layers are not ``free_space``'s.
+    """
+
+    def __init__(self, free_space: FreeSpaceModel, correction: Corr | Xfer | None = None,
+                 config: EstimatorConfig | None = None, wrench_map: WrenchMap | None = None
+                 ) -> None:
+        if correction is not None and not isinstance(correction, (Corr, Xfer)):
+            raise ConfigError(f"correction must be Corr, Xfer or None, got {type(correction)}")
+        if isinstance(correction, Xfer) and not correction.uses_base(free_space):
+            raise ConfigError("the Xfer model was not built on this free-space model")
+        self.free_space, self.correction = free_space, correction
+        self.config = config if config is not None else EstimatorConfig()
+        self.wrench_map = wrench_map if wrench_map is not None else WrenchMap(self.config.wrench)
+        self.refresh()
+
+    @property
+    def mode(self) -> str:
+        """``"base"``, ``"corr"`` or ``"xfer"``."""
+        if isinstance(self.correction, Corr):
+            return "corr"
+        return "xfer" if isinstance(self.correction, Xfer) else "base"
+
+    def refresh(self) -> None:
+        """Rebuild the streaming kernels from the current weights and restart the state."""
+        recurrent = self.correction if isinstance(self.correction, Xfer) else self.free_space
+        self._recurrent = recurrent.kernel()
+        self._corr = self.correction.kernel() if isinstance(self.correction, Corr) else None
+        self._window = HistoryWindow(self.correction.window) if self._corr is not None else None
+        self.reset_state()
+
+    def reset_state(self) -> None:
+        """Forget the past: the next sample starts a new segment."""
+        self._state = None
+        self._t_last: float | None = None
+        if self._window is not None:
+            self._window.reset()
+
+    def step_one(self, t: float, q: np.ndarray, dq: np.ndarray,
+                 tau_measured: np.ndarray) -> EstimatorOutput:
+        """Estimate one sample.
+
+        Args:
+            t: sample time [s].
+            q, dq: (6,) joint positions [rad; m] and velocities [rad/s; m/s].
+            tau_measured: (6,) measured joint efforts [N m; N].
+        Raises:
+            DataError: wrong shapes or non-finite values.
+        """
+        q, dq = np.asarray(q, dtype=np.float64), np.asarray(dq, dtype=np.float64)
+        tau_measured = np.asarray(tau_measured, dtype=np.float64)
+        if not q.shape == dq.shape == tau_measured.shape == (N_JOINTS,):
+            raise DataError(f"q, dq and tau_measured must have shape (6,), got {q.shape}, "
+                            f"{dq.shape}, {tau_measured.shape}")
+        x = np.concatenate([q, dq])                              # (12,) [q, dq]
+        if not (np.isfinite(t) and np.isfinite(x).all() and np.isfinite(tau_measured).all()):
+            raise DataError("joint state contains NaN or Inf")
+        restart = (self._t_last is None or not 0.0 < t - self._t_last <= self.config.max_gap_s)
+        if restart:
+            self.reset_state()
+        self._t_last = float(t)
+        if self._state is None:
+            self._state = self._recurrent.initial_state(1)
+        y, self._state = self._recurrent.step(x[None, :], self._state)
+        if self._corr is not None:
+            window = self._window.push(x)
+            y = self._corr.correct(window[None], y)
+        predicted = y[0].astype(np.float64)
+        external = tau_measured - predicted
+        wrench = self.wrench_map.wrench(q, external)
+        return EstimatorOutput(float(t), predicted, external, wrench, restart)
+
+    def predict_torque(self, features: np.ndarray) -> np.ndarray:
+        """Predicted torques of one gap-free segment: (T, 12) -> (T, 6), from a fresh state."""
+        if isinstance(self.correction, Xfer):
+            return self.correction.predict_sequence(features)
+        step1 = self.free_space.predict_sequence(features)
+        if isinstance(self.correction, Corr):
+            return self.correction.correct_sequence(features, step1)
+        return step1
+
+    def predict_batch(self, states: JointStates) -> EstimatorBatch:
+        """Estimates of a whole series, the same numbers as :meth:`step_one` sample by sample.
+
+        Does not touch the streaming state.
+        """
+        n = len(states)
+        predicted = np.zeros((n, N_JOINTS))
+        restarted = np.zeros(n, dtype=bool)
+        x = np.concatenate([states.position, states.velocity], axis=1)
+        for seg in segments(states.t, self.config.max_gap_s):
+            predicted[seg] = self.predict_torque(x[seg])
+            restarted[seg.start] = True
+        external = states.effort - predicted
+        wrench = self.wrench_map.wrench_batch(states.position, external)
+        return EstimatorBatch(states.t.copy(), predicted, external, wrench, restarted)

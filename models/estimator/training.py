@@ -1,0 +1,325 @@
+"""Training loops of the two-step estimator: step 1 (free space, ``Troc``), ``Xfer``, ``Corr``.
+
+Recipes follow Wu, Yilmaz, Kazanzides, Tumerdem (arXiv 2012.01479): Adam at a learning rate
+of 1e-3; the step-1 networks 1000 epochs with the rate halved every 125 epochs; the
+correction network 400 epochs with L2 weight decay 0.01 (Adam's coupled ``weight_decay``,
+i.e. an L2 penalty, not AdamW). The ``Xfer`` recipe reuses the step-1 schedule (an assumption).
+
+Recurrent models train with truncated back-propagation through time: every gap-free training
+segment is cut into lanes of ``window * lane_windows`` samples (cut points shifted by a random
+offset each epoch); a batch of lanes is walked window by window, the LSTM state carried
+(detached) from one window to the next, as in streaming inference. Each joint group keeps the
+weights of its best validation epoch (the paper trains one network per group); training stops
+early when no group improved for ``patience`` epochs.
+
+The validation split is the last ``val_fraction`` of every series (contiguous in time). All
+randomness (initial weights, dropout, lane order) comes from ``seed``. Train on motion without
+contact: the target is the measured effort.
+
+The paper's variants, as (function, recipe, data):
+
+=======  ===============================  ==========================================
+Base     ``fit_free_space``, free-space   free motion, no trocar
+Troc     ``fit_free_space``, ``"troc"``   trocar motion only (step-1 structure)
+Corr     ``fit_corr`` on Base, ``"corr"``  trocar motion, a few minutes
+Xfer     ``fit_xfer`` on Base, ``"xfer"``  trocar motion, a few minutes
+=======  ===============================  ==========================================
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass, field
+from typing import Any, Callable, Sequence
+
+import numpy as np
+import torch
+from pydantic import BaseModel, ConfigDict, Field
+
+from models.errors import ConfigError, DataError
+from models.estimator.correction import Corr, CorrConfig, Xfer, XferConfig
+from models.estimator.features import history_windows, segments
+from models.estimator.free_space import FreeSpaceConfig, FreeSpaceModel, GroupedTorqueModel
+from models.series import JointStates
+
+Segment = tuple[np.ndarray, np.ndarray]          # (T, 12) features, (T, 6) measured torques
+
+
+class TrainConfig(BaseModel):
+    """Optimisation of one network."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    epochs: int = Field(default=1000, ge=1, description="maximum number of epochs")
+    lr: float = Field(default=1e-3, gt=0.0, description="Adam learning rate")
+    lr_halving_epochs: int | None = Field(default=125, ge=1,
+                                          description="halve the rate every N epochs; None: never")
+    batch_size: int = Field(default=16, ge=1, description="lanes (recurrent) or samples (Corr)")
+    window: int = Field(default=100, ge=2, description="truncated-BPTT window [samples]")
+    lane_windows: int = Field(default=8, ge=1, description="windows per lane (state carried)")
+    weight_decay: float = Field(default=0.0, ge=0.0, description="L2 penalty (Adam weight_decay)")
+    grad_clip: float | None = Field(default=1.0, gt=0.0, description="max gradient norm per group")
+    patience: int | None = Field(default=100, ge=1, description="early-stopping patience [epochs]")
+    val_fraction: float = Field(default=0.2, gt=0.0, lt=1.0, description="validation tail share")
+    max_gap_s: float = Field(default=0.05, gt=0.0, description="gap that splits a series [s]")
+    seed: int = Field(default=0, description="seed of every random choice")
+
+
+#: Named recipes. ``troc`` is the step-1 structure trained directly on trocar data.
+RECIPES: dict[str, TrainConfig] = {
+    "free-space": TrainConfig(epochs=1000, lr_halving_epochs=125),
+    "troc": TrainConfig(epochs=1000, lr_halving_epochs=125),
+    "xfer": TrainConfig(epochs=1000, lr_halving_epochs=125),
+    "corr": TrainConfig(epochs=400, lr_halving_epochs=None, weight_decay=0.01, batch_size=256),
+}
+
+
+def recipe(name: str, **overrides: Any) -> TrainConfig:
+    """The named recipe with fields overridden (e.g. ``recipe("corr", epochs=20)``)."""
+    try:
+        base = RECIPES[name]
+    except KeyError:
+        raise ConfigError(f"unknown recipe {name!r}; choose one of {sorted(RECIPES)}") from None
+    return TrainConfig(**{**base.model_dump(), **overrides})       # validates the overrides
+
+
+@dataclass
+class TrainResult:
+    """A trained model with what a checkpoint records about it."""
+
+    kind: str                                   # "free_space", "xfer" or "corr"
+    model: torch.nn.Module
+    train_config: TrainConfig
+    data: dict[str, Any]
+    validation: dict[str, Any]
+    history: list[float] = field(default_factory=list)   # validation score per epoch
+
+
+def split_series(series: Sequence[JointStates], val_fraction: float, max_gap_s: float
+                 ) -> tuple[list[Segment], list[Segment]]:
+    """Training and validation segments: the last ``val_fraction`` of each series validates."""
+    train, val = [], []
+    for s in series:
+        x = np.concatenate([s.position, s.velocity], axis=1)
+        cut = len(s) - int(round(len(s) * val_fraction))
+        for part, out in ((slice(0, cut), train), (slice(cut, len(s)), val)):
+            t = s.t[part]
+            for seg in segments(t, max_gap_s):
+                if seg.stop - seg.start >= 2:
+                    out.append((x[part][seg], s.effort[part][seg]))
+    if not train or not val:
+        raise DataError("not enough samples for a training and a validation split")
+    return train, val
+
+
+def describe_data(series: Sequence[JointStates], data: dict[str, Any] | None,
+                  config: TrainConfig) -> dict[str, Any]:
+    """The data description a checkpoint stores: the caller's labels plus counts."""
+    return {**(data or {}), "n_series": len(series), "n_samples": int(sum(len(s) for s in series)),
+            "duration_s": float(sum(s.t[-1] - s.t[0] for s in series if len(s) > 1)),
+            "rate_hz": [s.rate_hz for s in series], "val_fraction": config.val_fraction}
+
+
+def _rmse_report(pred: np.ndarray, target: np.ndarray, baseline_mean: np.ndarray,
+                 scale: np.ndarray) -> dict[str, Any]:
+    rmse = np.sqrt(np.mean((pred - target) ** 2, axis=0))
+    base = np.sqrt(np.mean((target - baseline_mean) ** 2, axis=0))
+    return {"rmse": rmse.tolist(), "baseline_rmse": base.tolist(),
+            "score": float(np.mean(rmse / scale))}
+
+
+# -- recurrent models (step 1, Troc, Xfer) ------------------------------------------------
+def _lanes(segs: list[Segment], length: int, offset: int) -> tuple[np.ndarray, np.ndarray]:
+    xs, ys = [], []
+    for x, y in segs:
+        start = offset if len(x) - offset >= length else 0
+        n = (len(x) - start) // length
+        for k in range(n):
+            sl = slice(start + k * length, start + (k + 1) * length)
+            xs.append(x[sl])
+            ys.append(y[sl])
+    if not xs:
+        raise DataError(f"no training segment holds a full lane of {length} samples")
+    return np.stack(xs), np.stack(ys)
+
+
+def _detach(state):
+    if isinstance(state, torch.Tensor):
+        return state.detach()
+    return None if state is None else tuple(_detach(s) for s in state)
+
+
+def _group_val_losses(model: GroupedTorqueModel, val: list[Segment]) -> np.ndarray:
+    """Normalised MSE per joint over the validation segments (eval mode)."""
+    model.eval()
+    sq, n = 0.0, 0
+    with torch.no_grad():
+        dtype = model.in_mean.dtype
+        for x, y in val:
+            ys, _ = model.forward_normalised(torch.as_tensor(x, dtype=dtype)[None])
+            pred = torch.cat(ys, -1)[0].double().numpy()
+            yn = (y - model.out_mean.double().numpy()) / model.out_std.double().numpy()
+            sq, n = sq + ((pred - yn) ** 2).sum(0), n + len(y)
+    return sq / n
+
+
+def train_recurrent(model: GroupedTorqueModel, train: list[Segment], val: list[Segment],
+                    config: TrainConfig, on_epoch: Callable[[int, float], None] | None = None
+                    ) -> tuple[dict[str, Any], list[float]]:
+    """Train ``model`` in place (normalisation already set). Returns (validation, history)."""
+    rng = np.random.default_rng(config.seed)
+    params = [p for p in model.parameters() if p.requires_grad]
+    opt = torch.optim.Adam(params, lr=config.lr, weight_decay=config.weight_decay)
+    sched = (torch.optim.lr_scheduler.StepLR(opt, config.lr_halving_epochs, gamma=0.5)
+             if config.lr_halving_epochs else None)
+    dtype = model.in_mean.dtype
+    mean, std = model.out_mean, model.out_std
+    groups = [list(g) for g in model.groups]
+    best = [np.inf] * len(groups)
+    best_state = [copy.deepcopy(net.state_dict()) for net in model.nets]
+    history, stale = [], 0
+    lane_len = config.window * config.lane_windows
+    for epoch in range(config.epochs):
+        model.train()
+        xs, ys = _lanes(train, lane_len, int(rng.integers(config.window)))
+        order = rng.permutation(len(xs))
+        for b in range(0, len(order), config.batch_size):
+            idx = order[b:b + config.batch_size]
+            xb = torch.as_tensor(xs[idx], dtype=dtype)
+            yb = (torch.as_tensor(ys[idx], dtype=dtype) - mean) / std
+            states = None
+            for w in range(config.lane_windows):
+                sl = slice(w * config.window, (w + 1) * config.window)
+                outs, states = model.forward_normalised(xb[:, sl], states)
+                states = [_detach(s) for s in states]
+                loss = sum(torch.mean((o - yb[:, sl][..., g]) ** 2) for o, g in zip(outs, groups))
+                opt.zero_grad(set_to_none=True)
+                loss.backward()
+                if config.grad_clip:
+                    for net in model.nets:
+                        torch.nn.utils.clip_grad_norm_(
+                            [p for p in net.parameters() if p.requires_grad], config.grad_clip)
+                opt.step()
+        if sched is not None:
+            sched.step()
+        per_joint = _group_val_losses(model, val)
+        improved = False
+        for k, g in enumerate(groups):
+            loss_g = float(per_joint[g].mean())
+            if loss_g < best[k]:
+                best[k], improved = loss_g, True
+                best_state[k] = copy.deepcopy(model.nets[k].state_dict())
+        history.append(float(np.sqrt(per_joint).mean()))
+        if on_epoch is not None:
+            on_epoch(epoch, history[-1])
+        stale = 0 if improved else stale + 1
+        if config.patience is not None and stale >= config.patience:
+            break
+    for net, state in zip(model.nets, best_state):
+        net.load_state_dict(state)
+    model.eval()
+    pred = np.concatenate([model.predict_sequence(x) for x, _ in val])
+    target = np.concatenate([y for _, y in val])
+    report = _rmse_report(pred, target, model.out_mean.double().numpy(),
+                          model.out_std.double().numpy())
+    return {**report, "epochs_run": len(history)}, history
+
+
+def fit_free_space(series: Sequence[JointStates], model_config: FreeSpaceConfig | None = None,
+                   config: TrainConfig | None = None, data: dict[str, Any] | None = None,
+                   on_epoch: Callable[[int, float], None] | None = None) -> TrainResult:
+    """Train a step-1 model on free-space series (or on trocar series: the ``Troc`` model)."""
+    config = config if config is not None else RECIPES["free-space"]
+    train, val = split_series(series, config.val_fraction, config.max_gap_s)
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(config.seed)
+        model = FreeSpaceModel(model_config)
+        model.set_input_normalisation(np.concatenate([x for x, _ in train]))
+        model.set_output_normalisation(np.concatenate([y for _, y in train]))
+        validation, history = train_recurrent(model, train, val, config, on_epoch)
+    return TrainResult("free_space", model, config, describe_data(series, data, config),
+                       validation, history)
+
+
+def fit_xfer(base: FreeSpaceModel, series: Sequence[JointStates],
+             xfer_config: XferConfig | None = None, config: TrainConfig | None = None,
+             data: dict[str, Any] | None = None,
+             on_epoch: Callable[[int, float], None] | None = None) -> TrainResult:
+    """Train the new layers of an ``Xfer`` on ``base`` with trocar series (no contact)."""
+    config = config if config is not None else RECIPES["xfer"]
+    train, val = split_series(series, config.val_fraction, config.max_gap_s)
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(config.seed)
+        model = Xfer(xfer_config, base=base)
+        model.set_output_normalisation(np.concatenate([y for _, y in train]))
+        validation, history = train_recurrent(model, train, val, config, on_epoch)
+    return TrainResult("xfer", model, config, describe_data(series, data, config),
+                       validation, history)
+
+
+# -- the correction network ---------------------------------------------------------------
+def _corr_arrays(base: FreeSpaceModel, segs: list[Segment], window: int):
+    xs = [x for x, _ in segs]
+    step1 = [base.predict_sequence(x) for x in xs]
+    return (np.concatenate([history_windows(x, window) for x in xs]), np.concatenate(step1),
+            np.concatenate([y for _, y in segs]), np.concatenate(xs))
+
+
+def fit_corr(base: FreeSpaceModel, series: Sequence[JointStates],
+             corr_config: CorrConfig | None = None, config: TrainConfig | None = None,
+             data: dict[str, Any] | None = None,
+             on_epoch: Callable[[int, float], None] | None = None) -> TrainResult:
+    """Train a ``Corr`` on top of the frozen step-1 ``base`` with trocar series (no contact)."""
+    config = config if config is not None else RECIPES["corr"]
+    train, val = split_series(series, config.val_fraction, config.max_gap_s)
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(config.seed)
+        corr = Corr(corr_config).to(base.in_mean.dtype)
+        w_tr, s_tr, y_tr, x_tr = _corr_arrays(base, train, corr.window)
+        w_va, s_va, y_va, _ = _corr_arrays(base, val, corr.window)
+        corr.set_normalisation(x_tr, s_tr)
+        dtype = corr.in_mean.dtype
+        w_tr, s_tr, y_tr = (torch.as_tensor(a, dtype=dtype) for a in (w_tr, s_tr, y_tr))
+        w_va_t, s_va_t = (torch.as_tensor(a, dtype=dtype) for a in (w_va, s_va))
+        target_tr = (y_tr - s_tr) / corr.tau_std
+        opt = torch.optim.Adam(corr.parameters(), lr=config.lr, weight_decay=config.weight_decay)
+        sched = (torch.optim.lr_scheduler.StepLR(opt, config.lr_halving_epochs, gamma=0.5)
+                 if config.lr_halving_epochs else None)
+        gen = torch.Generator().manual_seed(config.seed)
+        scale = np.maximum(y_tr.double().numpy().std(0), 1e-6)
+        best, best_state, history, stale = np.inf, copy.deepcopy(corr.state_dict()), [], 0
+        for epoch in range(config.epochs):
+            corr.train()
+            order = torch.randperm(len(w_tr), generator=gen)
+            for b in range(0, len(order), config.batch_size):
+                idx = order[b:b + config.batch_size]
+                loss = torch.mean((corr.correction_normalised(w_tr[idx], s_tr[idx])
+                                   - target_tr[idx]) ** 2)
+                opt.zero_grad(set_to_none=True)
+                loss.backward()
+                if config.grad_clip:
+                    torch.nn.utils.clip_grad_norm_(corr.parameters(), config.grad_clip)
+                opt.step()
+            if sched is not None:
+                sched.step()
+            corr.eval()
+            with torch.no_grad():
+                pred = corr(w_va_t, s_va_t).double().numpy()
+            history.append(float(np.mean(np.sqrt(np.mean((pred - y_va) ** 2, 0)) / scale)))
+            if on_epoch is not None:
+                on_epoch(epoch, history[-1])
+            if history[-1] < best:
+                best, best_state, stale = history[-1], copy.deepcopy(corr.state_dict()), 0
+            else:
+                stale += 1
+            if config.patience is not None and stale >= config.patience:
+                break
+        corr.load_state_dict(best_state)
+        corr.eval()
+        with torch.no_grad():
+            pred = corr(w_va_t, s_va_t).double().numpy()
+    report = _rmse_report(pred, y_va, y_tr.double().numpy().mean(0), scale)
+    step1 = np.sqrt(np.mean((s_va - y_va) ** 2, axis=0))
+    validation = {**report, "step1_rmse": step1.tolist(), "epochs_run": len(history)}
+    return TrainResult("corr", corr, config, describe_data(series, data, config), validation,
+                       history)

@@ -1,0 +1,85 @@
+import numpy as np
+import pytest
+
+from models.errors import ConfigError, DataError
+from models.estimator.correction import Xfer
+from models.estimator.estimator import EstimatorConfig, TwoStepEstimator
+from models.estimator.free_space import FreeSpaceModel
+from models.series import JointStates
+
+
+def _with_gap(session, n=300, gap_at=120, gap_s=0.5):
+    """The first ``n`` samples, with the clock jumping ``gap_s`` at ``gap_at``."""
+    js = session.joint_states.slice(0, n)
+    t = js.t.copy()
+    t[gap_at:] += gap_s
+    return JointStates(t, js.position, js.velocity, js.effort)
+
+
+def _stream(est, js):
+    est.reset_state()
+    outs = [est.step_one(t, q, dq, e) for t, q, dq, e in
+            zip(js.t, js.position, js.velocity, js.effort)]
+    return {name: np.array([getattr(o, name) for o in outs])
+            for name in ("predicted_torque", "external_torque", "wrench", "restarted")}
+
+
+@pytest.mark.parametrize("mode", ["base", "corr", "xfer"])
+def test_streaming_equals_batch(mode, models_f64, free_space_session):
+    fs, corr, xfer = models_f64
+    est = TwoStepEstimator(fs, {"base": None, "corr": corr, "xfer": xfer}[mode])
+    assert est.mode == mode
+    js = _with_gap(free_space_session)
+    batch = est.predict_batch(js)
+    streamed = _stream(est, js)
+    assert streamed["restarted"].nonzero()[0].tolist() == [0, 120]
+    np.testing.assert_array_equal(streamed["restarted"], batch.restarted)
+    for name in ("predicted_torque", "external_torque"):
+        np.testing.assert_allclose(streamed[name], getattr(batch, name), rtol=0, atol=1e-10)
+    np.testing.assert_allclose(streamed["wrench"], batch.wrench, rtol=0, atol=1e-8)
+    np.testing.assert_allclose(batch.external_torque, js.effort - batch.predicted_torque)
+
+
+def test_streaming_equals_batch_float32(models_f32, free_space_session):
+    fs, corr, _ = models_f32
+    est = TwoStepEstimator(fs, corr)
+    js = _with_gap(free_space_session)
+    batch, streamed = est.predict_batch(js), _stream(est, js)
+    scale = np.abs(batch.predicted_torque).max(axis=0)
+    assert np.all(np.abs(streamed["predicted_torque"] - batch.predicted_torque) <= 1e-5 * scale)
+
+
+def test_the_gap_restart_matters(models_f64, free_space_session):
+    """Without the restart the state after the gap differs: the test above could fail."""
+    fs, corr, _ = models_f64
+    js = _with_gap(free_space_session)
+    restarted = TwoStepEstimator(fs, corr).predict_batch(js).predicted_torque
+    carried = TwoStepEstimator(fs, corr, EstimatorConfig(max_gap_s=1.0)).predict_batch(js)
+    assert not carried.restarted[120]
+    assert np.abs(restarted[120:130] - carried.predicted_torque[120:130]).max() > 1e-4
+
+
+def test_reset_state_and_time_going_back_restart(models_f64, free_space_session):
+    fs, corr, _ = models_f64
+    est = TwoStepEstimator(fs, corr)
+    js = free_space_session.joint_states.slice(0, 40)
+    first = _stream(est, js)["predicted_torque"]
+    for t, q, dq, e in zip(js.t, js.position, js.velocity, js.effort):
+        est.step_one(t, q, dq, e)
+    again = est.step_one(js.t[0], js.position[0], js.velocity[0], js.effort[0])
+    assert again.restarted
+    np.testing.assert_array_equal(again.predicted_torque, first[0])
+
+
+def test_rejects_bad_input_and_mismatched_xfer(models_f64):
+    fs, _, _ = models_f64
+    est = TwoStepEstimator(fs)
+    with pytest.raises(DataError):
+        est.step_one(0.0, np.zeros(6), np.zeros(5), np.zeros(6))
+    with pytest.raises(DataError):
+        est.step_one(0.0, np.full(6, np.nan), np.zeros(6), np.zeros(6))
+    with pytest.raises(ConfigError):
+        TwoStepEstimator(fs, Xfer(base=FreeSpaceModel()))
+    with pytest.raises(ConfigError):
+        TwoStepEstimator(fs, "corr")
+
