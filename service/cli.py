@@ -5,6 +5,7 @@ Sub-commands:
   serve      stream the simulated PSM over zenoh and record the session (embedded default)
   inspect    summarise an MCAP session (topics, samples, truncation)
   effects    list the effect vocabulary of model files, with parameters and defaults
+  bench      speed of the estimator (``bench inference``)
 """
 
 from __future__ import annotations
@@ -86,6 +87,12 @@ def _cmd_serve(args: argparse.Namespace) -> int:
                            zenoh=zenoh)
 
 
+def _cmd_bench(args: argparse.Namespace) -> int:
+    from service.bench import run
+
+    return run(args.kind, args.json, args.duration)
+
+
 def build_parser() -> argparse.ArgumentParser:
     from adapters.sim.scenarios import SCENARIOS
 
@@ -125,6 +132,13 @@ def build_parser() -> argparse.ArgumentParser:
     srv.add_argument("--connect", action="append", metavar="ENDPOINT",
                      help="zenoh endpoint to connect to (repeatable)")
     srv.set_defaults(func=_cmd_serve)
+
+    bench = sub.add_parser("bench", help="measure speed (medians and percentiles, one run)")
+    bench.add_argument("kind", choices=["inference"])
+    bench.add_argument("--json", help="also write the result to this file")
+    bench.add_argument("--duration", type=float, default=60.0,
+                       help="simulated session length to run through [s]")
+    bench.set_defaults(func=_cmd_bench)
     return parser
 
 

@@ -71,3 +71,12 @@ def test_effects_lists_the_vocabulary():
     out = wrenchd("effects").stdout
     for name in ("seal_friction", "body_wall", "payload_mass", "drift", "external_contact"):
         assert f"{name}:" in out
+
+
+def test_bench_inference_writes_its_json(tmp_path):
+    out = tmp_path / "inference.json"
+    wrenchd("bench", "inference", "--duration", "3", "--json", str(out))
+    result = json.loads(out.read_text())
+    assert {"step_p50_us", "step_p99_us", "batch_samples_per_s"} <= set(result)
+    assert 0 < result["step_p50_us"] <= result["step_p99_us"]
+    assert result["batch_samples_per_s"] > 0 and result["samples"] == 600

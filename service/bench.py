@@ -1,0 +1,70 @@
+"""``wrenchd bench``: speed measured, not asserted.
+
+``inference`` times one streaming step of the whole two-step estimator (the four step-1 group
+networks, Corr and the wrench map) on one core, and batched offline inference, on a simulated
+``trocar-contact`` session. Latency does not depend on the weights' values, so freshly
+initialised networks (normalised on the session) are used; the figure is the cost of the
+computation the service runs per sample.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def bench_inference(duration_s: float = 60.0, seed: int = 3, warmup: int = 500) -> dict:
+    """Returns ``{"step_p50_us", "step_p99_us", "batch_samples_per_s", ...}``."""
+    import torch
+
+    torch.set_num_threads(1)
+    from adapters.sim.scenarios import run_scenario
+    from models.estimator.correction import Corr
+    from models.estimator.estimator import TwoStepEstimator
+    from models.estimator.free_space import FreeSpaceModel
+
+    torch.manual_seed(seed)
+    js = run_scenario("trocar-contact", duration_s, seed).joint_states
+    x = np.c_[js.position, js.velocity]
+    base = FreeSpaceModel()
+    base.set_input_normalisation(x)
+    base.set_output_normalisation(js.effort)
+    corr = Corr()
+    corr.set_normalisation(x, js.effort)
+    est = TwoStepEstimator(base.eval(), corr)
+    for i in range(min(warmup, len(js))):
+        est.step_one(js.t[i], js.position[i], js.velocity[i], js.effort[i])
+    est.reset_state()
+    lat_us = np.empty(len(js))
+    clock = time.perf_counter_ns
+    for i in range(len(js)):
+        start = clock()
+        est.step_one(js.t[i], js.position[i], js.velocity[i], js.effort[i])
+        lat_us[i] = (clock() - start) / 1e3
+    start = time.perf_counter()
+    est.predict_batch(js)
+    batch_s = time.perf_counter() - start
+    return {
+        "step_p50_us": round(float(np.percentile(lat_us, 50)), 1),
+        "step_p99_us": round(float(np.percentile(lat_us, 99)), 1),
+        "batch_samples_per_s": round(len(js) / batch_s),
+        "samples": len(js),
+        "estimator": "step 1 (4 group LSTMs) + Corr + damped J^-T wrench",
+        "threads": 1,
+    }
+
+
+def run(kind: str, json_path: str | None, duration_s: float) -> int:
+    if kind != "inference":
+        raise SystemExit(f"wrenchd bench: unknown benchmark {kind!r}")
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    result = bench_inference(duration_s=duration_s)
+    text = json.dumps(result, indent=2)
+    print(text)
+    if json_path:
+        Path(json_path).write_text(text + "\n")
+    return 0
