@@ -65,16 +65,16 @@ class Scenario:
     force_sensor: bool = False
 
 
-def _free(_: float) -> list[dict[str, Any]]:
+def _free(duration: float) -> list[dict[str, Any]]:
     return copy.deepcopy(FREE_SPACE_EFFECTS)
 
 
-def _seal(_: float) -> list[dict[str, Any]]:
-    return _free(_) + [dict(SEAL)]
+def _seal(duration: float) -> list[dict[str, Any]]:
+    return _free(duration) + [dict(SEAL)]
 
 
-def _trocar(_: float) -> list[dict[str, Any]]:
-    return _seal(_) + [dict(BODY_WALL)]
+def _trocar(duration: float) -> list[dict[str, Any]]:
+    return _seal(duration) + [dict(BODY_WALL)]
 
 
 def _insufflation(duration: float) -> list[dict[str, Any]]:

@@ -90,20 +90,26 @@ def simulate(model: PhysicsModel, trajectory: FourierTrajectory, duration_s: flo
     if any(e.stateful for e in model.effects.values()):
         motion_int = model.motion(t_int, q_int, dq_int, ddq_int)
         effects.update({k: v[pub] for k, v in model.effect_torques(motion_int, stateful=True).items()})
-    effects.update(model.effect_torques(motion_pub, stateful=False))
-    effects = {k: effects[k] for k in model.effects}            # model-file order
-
     rigid = model.rigid_body_torque(motion_pub)
-    internal = rigid.copy()
-    external = np.zeros_like(rigid)
     wrench = np.zeros_like(rigid)
     in_contact = np.zeros(len(t), dtype=bool)
+    for key, effect in model.effects.items():
+        if effect.stateful:
+            continue
+        if model.is_external(key):                 # the wrench is ground truth too: once
+            w, c = effect.wrench(motion_pub)
+            effects[key] = effect.torque_from_wrench(motion_pub, w, c)
+            wrench += w
+            in_contact |= c
+        else:
+            effects[key] = effect.torque(motion_pub)
+    effects = {k: effects[k] for k in model.effects}            # model-file order
+
+    internal = rigid.copy()
+    external = np.zeros_like(rigid)
     for key, tau in effects.items():
         if model.is_external(key):
             external += tau
-            w, c = model.effects[key].wrench(motion_pub)
-            wrench += w
-            in_contact |= c
         else:
             internal += tau
     effects = {"rigid_body": rigid, **effects}

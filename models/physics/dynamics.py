@@ -147,9 +147,10 @@ class RigidBodyModel:
     def gravity(self, q: np.ndarray) -> np.ndarray:
         """Gravity torques (N, 6) at rest."""
         q = check_positions(_batch(q, "q"))
-        z = np.zeros(N_JOINTS)
-        return np.stack([pin.computeGeneralizedGravity(self.model, self.data, qi) for qi in q]) \
-            if len(q) else np.empty((0, N_JOINTS)) + z
+        out = np.empty_like(q)
+        for i in range(q.shape[0]):
+            out[i] = pin.computeGeneralizedGravity(self.model, self.data, q[i])
+        return out
 
     def regressor(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> np.ndarray:
         """Joint-torque regressor (N, 6, 60): ``tau_rigid = Y @ parameters`` (no armature)."""

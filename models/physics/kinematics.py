@@ -66,8 +66,7 @@ PSM_UPPER = np.array([1.588, 0.925, 0.24, 4.538, 1.396, 1.396])
 #: wrist geometry). An assumption documented here; the tip frame keeps wrist-yaw axes.
 TIP_OFFSET_M = 0.0102
 
-#: Joint axis index of the shaft in frame 3/4: the instrument shaft is the z axis of the
-#: insertion frame, pointing from the RCM towards the tip.
+#: The frame whose z axis is the instrument shaft, pointing from the RCM towards the tip.
 SHAFT_FRAME = "outer_insertion"
 
 
@@ -165,14 +164,21 @@ class PSMKinematics:
     def shaft_axis(self, q: np.ndarray) -> np.ndarray:
         """Unit vector of the instrument shaft (RCM towards tip) in base axes, (3,) or (N, 3).
 
-        Only the yaw and pitch joints move the shaft: a closed form of the DH chain, checked
-        against pinocchio in the tests.
+        Only the yaw and pitch joints move the shaft (see :func:`shaft_axis_and_derivatives`).
         """
         q = check_positions(q)
-        q1, q2 = q[..., 0], q[..., 1]
-        # z axis of the insertion frame: from Rx(pi/2) Rz(q1+pi/2) Rx(-pi/2) Rz(q2-pi/2) Rx(pi/2).
-        return np.stack([
-            np.sin(q1) * np.cos(q2),
-            -np.sin(q2),
-            -np.cos(q1) * np.cos(q2),
-        ], axis=-1)
+        return shaft_axis_and_derivatives(np.atleast_2d(q))[0].reshape(q.shape[:-1] + (3,))
+
+
+def shaft_axis_and_derivatives(q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Shaft axis ``u`` and its partial derivatives in yaw and pitch, each (N, 3), for q (N, 6).
+
+    Closed form of the DH chain's insertion z axis,
+    ``Rx(pi/2) Rz(q1+pi/2) Rx(-pi/2) Rz(q2-pi/2) Rx(pi/2)``; checked against pinocchio in the tests.
+    """
+    s1, c1 = np.sin(q[:, 0]), np.cos(q[:, 0])
+    s2, c2 = np.sin(q[:, 1]), np.cos(q[:, 1])
+    u = np.stack([s1 * c2, -s2, -c1 * c2], axis=1)
+    du1 = np.stack([c1 * c2, np.zeros_like(c1), s1 * c2], axis=1)
+    du2 = np.stack([-s1 * s2, -c2, c1 * s2], axis=1)
+    return u, du1, du2

@@ -23,6 +23,7 @@ import numpy as np
 from pydantic import Field
 
 from models.physics.effects.base import Effect, EffectParams, Motion, register
+from models.physics.kinematics import shaft_axis_and_derivatives
 
 
 class BodyWallParams(EffectParams):
@@ -35,19 +36,6 @@ class BodyWallParams(EffectParams):
     pressure_mmhg: float = Field(default=12.0, ge=0.0, le=30.0,
                                  description="insufflation pressure [mmHg]")
     damping_ns_per_m: float = Field(default=5.0, ge=0.0, description="lateral damping [N s/m]")
-
-
-def shaft_axis_and_derivatives(q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Shaft axis ``u`` and its partial derivatives in yaw and pitch, each (N, 3).
-
-    Closed form of the DH chain (see :meth:`PSMKinematics.shaft_axis`).
-    """
-    s1, c1 = np.sin(q[:, 0]), np.cos(q[:, 0])
-    s2, c2 = np.sin(q[:, 1]), np.cos(q[:, 1])
-    u = np.stack([s1 * c2, -s2, -c1 * c2], axis=1)
-    du1 = np.stack([c1 * c2, np.zeros_like(c1), s1 * c2], axis=1)
-    du2 = np.stack([-s1 * s2, -c2, c1 * s2], axis=1)
-    return u, du1, du2
 
 
 def body_wall_force(motion: Motion, incision: np.ndarray, k: np.ndarray, c: np.ndarray):

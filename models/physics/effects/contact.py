@@ -80,7 +80,11 @@ class ExternalContact(Effect):
         return wrench, weight > 0
 
     def torque(self, motion: Motion, overrides=None) -> np.ndarray:
-        wrench, contact = self.wrench(motion)
+        return self.torque_from_wrench(motion, *self.wrench(motion))
+
+    @staticmethod
+    def torque_from_wrench(motion: Motion, wrench: np.ndarray, contact: np.ndarray) -> np.ndarray:
+        """``J_hybrid^T w`` (N, 6) on the contact rows, zero elsewhere."""
         out = np.zeros_like(motion.q)
         rows = np.flatnonzero(contact)
         if rows.size:
