@@ -93,7 +93,14 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     return run(args.kind, args.json, args.duration)
 
 
+#: Modules that add their own sub-commands: each has ``register(subparsers)``, which adds a
+#: parser whose ``func(args) -> int`` runs it.
+COMMAND_MODULES: list[str] = []
+
+
 def build_parser() -> argparse.ArgumentParser:
+    import importlib
+
     from adapters.sim.scenarios import SCENARIOS
 
     parser = argparse.ArgumentParser(prog="wrenchd", description=__doc__,
@@ -139,6 +146,8 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--duration", type=float, default=60.0,
                        help="simulated session length to run through [s]")
     bench.set_defaults(func=_cmd_bench)
+    for module in COMMAND_MODULES:
+        importlib.import_module(module).register(sub)
     return parser
 
 
