@@ -3,7 +3,7 @@
 Importing this package registers every effect in :data:`EFFECTS` under the name model files
 use: ``coulomb_friction``, ``viscous_friction``, ``stribeck_friction``, ``joint_offset``,
 ``spring``, ``seal_friction``, ``body_wall``, ``payload_mass``, ``cable_coupling``, ``drift``,
-``external_contact``.
+``external_contact``, ``inertial_delta`` (identified base parameters).
 """
 
 from models.physics.effects import (  # noqa: F401  (imported to register)
@@ -12,6 +12,7 @@ from models.physics.effects import (  # noqa: F401  (imported to register)
     coupling,
     drift,
     friction,
+    inertial,
     payload,
     seal,
     static,

@@ -1,0 +1,418 @@
+"""Candidate effects as groups of physically meaningful regressor columns.
+
+Each candidate is an effect of the library written as columns ``X`` (N, 6, k): the joint
+torque per unit of each of its parameters, so the residual ``r ~ X beta`` is linear and
+``beta`` maps back to the effect's parameters (:meth:`Candidate.spec`). Columns are built on
+the *measured* motion (encoder positions, measured velocity, smoothed acceleration).
+
+=====================  ======================================================  ============
+effect                 columns                                                 parameters
+=====================  ======================================================  ============
+coulomb_friction       ``tanh(dq_j / 1e-3)`` on joint j, j = 1..6              fc (6)
+viscous_friction       ``dq_j`` on joint j                                     fv (6)
+stribeck_friction      ``exp(-(dq_j/vs_j)^2) sign(dq_j)``, vs_j profiled       fs (6), vs
+joint_offset           1 on joint j                                            offset (6)
+spring                 ``q_j`` and 1 on joint j (rest = -const / stiffness)    stiffness, rest
+seal_friction          insertion and roll: presliding (bristle) state, ``dq``,  fc, sigma2,
+                       Stribeck excess at the seal's vs                        fs_excess (2 each)
+body_wall              port stiffness and damping torques, default incision    k, damping
+payload_mass           point mass per kg at a fixed position (link 2 parallel-  mass_kg
+                       ogram load; link 6 tip), exact through the regressor
+cable_coupling         ``C^T e_i tanh(m_i / 1e-3)``, ``C^T e_i m_i``, m = C dq   motor_fc, motor_fv
+drift                  ``(t - t0) / 3600 * d tau_E / d log p`` for each effect  rate_per_hour
+                       E of the model and its level parameter p
+=====================  ======================================================  ============
+
+Not candidates: ``external_contact`` (a tip wrench during contact episodes; free-motion
+data has none, and its anchor and timing are not functions of the motion) and
+``inertial_delta`` (re-identifying the rigid body would absorb a payload or a spring into
+the base parameters: the discrepancy workflow keeps the given model fixed and explains what
+it leaves).
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+
+from models.physics.effects.base import Motion
+from models.physics.effects.body_wall import BodyWall
+from models.physics.effects.coupling import CableCoupling
+from models.physics.effects.friction import SIGN_SMOOTHING, StribeckParams, smooth_sign
+from models.physics.effects.payload import PayloadParams, point_mass_parameters
+from models.physics.effects.seal import SEALED_JOINTS, SealParams
+from models.physics.model import PhysicsModel
+
+#: Parameter a drift of each effect scales (the effect's level).
+DRIFT_PARAM = {
+    "coulomb_friction": "fc", "viscous_friction": "fv", "stribeck_friction": "fs",
+    "joint_offset": "offset", "spring": "stiffness", "seal_friction": "fc",
+    "cable_coupling": "motor_fc", "payload_mass": "mass_kg", "body_wall": "pressure_mmhg",
+}
+#: Payload hypotheses: carrying link -> point-mass position in its DH frame [m].
+PAYLOAD_SITES = {2: tuple(PayloadParams().position_m), 6: (0.0, 0.0, 0.0)}
+#: Joints a spring candidate may act on (0-based): the instrument's cable-driven roll and
+#: wrist (cable preload; WPI's identified K). Yaw and pitch carry no spring, and over their
+#: +-0.8 rad a spring ``k q + c`` and the gravity of a mass (``~ sin q``) are collinear
+#: (R^2 > 0.99 on the WPI trajectory), so one could not be told from the other there.
+SPRING_JOINTS = (3, 4, 5)
+#: Stribeck velocities tried, as multiples of the library default per joint.
+STRIBECK_GRID = (0.25, 0.5, 1.0, 2.0, 4.0)
+#: Effects never offered as candidates, and why (reported).
+NOT_CANDIDATES = {
+    "external_contact": "a tip wrench during contact episodes, not free motion; its anchor "
+                        "and timing are not functions of the joint motion",
+    "inertial_delta": "the identified rigid body itself; refitting it would absorb payloads "
+                      "and springs, so the given model's rigid body stays fixed",
+}
+
+
+@dataclass
+class Candidate:
+    """One candidate effect: its columns and how coefficients become model-file params.
+
+    Attributes:
+        name: effect vocabulary word.
+        label: unique label (``payload_mass@link2``, ``drift:coulomb_friction.fc``).
+        columns: (N, 6, k) torque per unit parameter [N m or N per unit].
+        names: the k coefficient names.
+        to_params: coefficients (k,) -> the effect's parameters to add.
+        main: indices of the coefficients that carry the effect's size (for stability).
+    """
+
+    name: str
+    label: str
+    columns: np.ndarray
+    names: list[str]
+    to_params: Callable[[np.ndarray], dict[str, Any]]
+    main: list[int] = field(default_factory=list)
+    fixed: dict[str, Any] = field(default_factory=dict)
+    #: (coefficient index, the model's current value): physically the sum must be >= 0
+    nonneg: list[tuple[int, float]] = field(default_factory=list)
+
+    def inadmissible(self, beta: np.ndarray, bse: np.ndarray, sigmas: float = 3.0) -> str | None:
+        """Why ``beta`` (with standard errors ``bse``) is unphysical, or None if it is not."""
+        bad = [self.names[i] for i, base in self.nonneg
+               if base + beta[i] + sigmas * bse[i] < 0]
+        return f"unphysical sign of {', '.join(bad)}" if bad else None
+
+    def torque(self, beta: np.ndarray) -> np.ndarray:
+        """Effect torque (N, 6) for coefficients ``beta`` (k,)."""
+        return self.columns @ beta
+
+    def joints(self) -> np.ndarray:
+        """Joints (0-based) any column touches."""
+        return np.flatnonzero(np.any(self.columns != 0, axis=(0, 2)))
+
+
+def _diag(values: np.ndarray, joints) -> np.ndarray:
+    """(N, 6, len(joints)) with ``values[:, j]`` on joint j in column i."""
+    n = values.shape[0]
+    out = np.zeros((n, 6, len(joints)))
+    for i, j in enumerate(joints):
+        out[:, j, i] = values[:, j]
+    return out
+
+
+def presliding_state(x: np.ndarray, z0: float) -> np.ndarray:
+    """Normalised bristle deflection in [-1, 1] (N,) of a LuGre contact with constant level.
+
+    ``dz/dx = 1 - sign(dx) z / z0``, integrated exactly per step: the sign of motion with a
+    memory of ``z0`` of travel, which is what distinguishes seal presliding from a
+    velocity-sign Coulomb term.
+    """
+    dx = np.diff(x, prepend=x[:1])
+    decay = np.exp(-np.abs(dx) / z0).tolist()
+    target = (np.sign(dx) * z0).tolist()
+    z, out = 0.0, []
+    for e, s in zip(decay, target):
+        z = s + (z - s) * e if s != 0.0 else z
+        out.append(z)
+    return np.asarray(out) / z0
+
+
+def _per_joint(key: str) -> Callable[[np.ndarray], dict[str, Any]]:
+    return lambda b: {key: [float(v) for v in b]}
+
+
+def _stribeck(motion: Motion, residual: np.ndarray, weights: np.ndarray) -> Candidate:
+    default_vs = np.asarray(StribeckParams().vs)
+    vs = np.empty(6)
+    for j in range(6):   # profile vs_j: best single-column fit of joint j's residual
+        best = np.inf
+        for f in STRIBECK_GRID:
+            col = np.exp(-np.square(motion.dq[:, j] / (f * default_vs[j]))) * smooth_sign(motion.dq[:, j])
+            denom = col @ col
+            ssr = residual[:, j] @ residual[:, j] - (col @ residual[:, j]) ** 2 / denom if denom > 0 else np.inf
+            if ssr < best:
+                best, vs[j] = ssr, f * default_vs[j]
+    cols = _diag(np.exp(-np.square(motion.dq / vs)) * smooth_sign(motion.dq), range(6))
+    vs_list = [float(v) for v in vs]
+    return Candidate("stribeck_friction", "stribeck_friction", cols,
+                     [f"fs{j}" for j in range(1, 7)],
+                     lambda b: {"fs": [float(v) for v in b], "vs": vs_list},
+                     list(range(6)), {"vs": vs_list})
+
+
+def _spring(motion: Motion) -> Candidate:
+    n = len(motion)
+    cols = np.concatenate([_diag(motion.q, SPRING_JOINTS), _diag(np.ones((n, 6)), SPRING_JOINTS)],
+                          axis=2)
+    m = len(SPRING_JOINTS)
+
+    def to_params(b):
+        k, rest = np.zeros(6), np.zeros(6)
+        for i, j in enumerate(SPRING_JOINTS):
+            k[j] = b[i]
+            rest[j] = -b[m + i] / b[i] if abs(b[i]) > 1e-12 else 0.0
+        return {"stiffness": [float(v) for v in k], "rest": [float(v) for v in rest]}
+    return Candidate("spring", "spring", cols, [f"k{j + 1}" for j in SPRING_JOINTS]
+                     + [f"c{j + 1}" for j in SPRING_JOINTS], to_params, list(range(m)))
+
+
+def _seal(motion: Motion) -> Candidate:
+    d = SealParams()
+    cols = np.zeros((len(motion), 6, 6))
+    names = []
+    for i, j in enumerate(SEALED_JOINTS):
+        z0 = (d.fc[i] + d.fs_excess[i]) / d.sigma0[i]          # presliding travel [m; rad]
+        v = motion.dq[:, j]
+        cols[:, j, 3 * i] = presliding_state(motion.q[:, j], z0)
+        cols[:, j, 3 * i + 1] = v
+        cols[:, j, 3 * i + 2] = np.exp(-np.square(v / d.vs[i])) * smooth_sign(v)
+        names += [f"fc{j + 1}", f"sigma2_{j + 1}", f"fs_excess{j + 1}"]
+
+    def to_params(b):
+        return {"fc": [float(b[0]), float(b[3])], "sigma2": [float(b[1]), float(b[4])],
+                "fs_excess": [float(b[2]), float(b[5])]}
+    return Candidate("seal_friction", "seal_friction", cols, names, to_params, [0, 3])
+
+
+def _body_wall(motion: Motion) -> Candidate:
+    stiff = BodyWall({"k0_n_per_m": 1.0, "k_per_mmhg": 0.0, "damping_ns_per_m": 0.0}).torque(motion)
+    damp = BodyWall({"k0_n_per_m": 0.0, "k_per_mmhg": 0.0, "damping_ns_per_m": 1.0}).torque(motion)
+    cols = np.stack([stiff, damp], axis=2)
+    return Candidate("body_wall", "body_wall", cols, ["k_n_per_m", "damping_ns_per_m"],
+                     lambda b: {"k0_n_per_m": float(b[0]), "k_per_mmhg": 0.0,
+                                "damping_ns_per_m": float(b[1])}, [0])
+
+
+def _payload(motion: Motion, regressor: np.ndarray, link: int) -> Candidate:
+    """A point mass on ``link``.
+
+    Link 2 (the parallelogram) turns about the RCM, its frame's origin, so a mass there acts
+    only through its first moment ``m c``: three columns (the regressor's ``mx, my, mz``)
+    whose fit gives the load's direction, and ``mass = |m c| / |c_nominal|`` with the
+    nominal lever arm (the library default position, the WPI load's). Other sites are one
+    column, the point mass per kg at the fixed position. Rotational inertia of the point
+    mass (``m |c|^2``, ~6e-3 kg m^2 for 0.2 kg at 0.18 m) is left out of the link 2 columns.
+    """
+    position = np.asarray(PAYLOAD_SITES[link], float)
+    block = regressor[:, :, 10 * (link - 1):10 * link]
+    if link == 2:
+        lever = float(np.linalg.norm(position))
+
+        def to_params(b):
+            mc = np.asarray(b[:3], float)
+            mass = float(np.linalg.norm(mc)) / lever
+            pos = (mc / np.linalg.norm(mc) * lever) if mass > 0 else position
+            return {"mass_kg": mass, "link": link, "position_m": [float(p) for p in pos]}
+        return Candidate("payload_mass", f"payload_mass@link{link}", block[:, :, 1:4].copy(),
+                         ["m_cx", "m_cy", "m_cz"], to_params, [0, 1, 2], {"link": link})
+    per_kg = block @ point_mass_parameters(1.0, position)              # (N, 6) [N m / kg]
+    pos = [float(p) for p in position]
+    return Candidate("payload_mass", f"payload_mass@link{link}", per_kg[:, :, None], ["mass_kg"],
+                     lambda b: {"mass_kg": float(b[0]), "link": link, "position_m": pos}, [0],
+                     {"link": link, "position_m": pos}, [(0, 0.0)])
+
+
+def _cable(motion: Motion) -> Candidate:
+    c = np.asarray(CableCoupling().params.coupling)                  # (2, 2)
+    m_vel = motion.dq[:, 4:6] @ c.T                                   # (N, 2) motor velocities
+    cols = np.zeros((len(motion), 6, 4))
+    for i in range(2):
+        cols[:, 4:6, i] = smooth_sign(m_vel[:, i], SIGN_SMOOTHING)[:, None] * c[i][None, :]
+        cols[:, 4:6, 2 + i] = m_vel[:, i][:, None] * c[i][None, :]
+    coupling = [[float(v) for v in row] for row in c]
+    return Candidate("cable_coupling", "cable_coupling", cols,
+                     ["motor_fc1", "motor_fc2", "motor_fv1", "motor_fv2"],
+                     lambda b: {"coupling": coupling, "motor_fc": [float(b[0]), float(b[1])],
+                                "motor_fv": [float(b[2]), float(b[3])]}, [0, 1])
+
+
+def _drifts(motion: Motion, model: PhysicsModel, floor: np.ndarray) -> list[Candidate]:
+    out = []
+    hours = (motion.t - motion.t[0]) / 3600.0
+    for key, effect in model.effects.items():
+        param = DRIFT_PARAM.get(effect.name)
+        if param is None:
+            continue
+        nominal = effect.param(param)
+        if not np.any(nominal != 0):
+            continue
+        eps = 0.1
+        dtau = (effect.torque(motion, {param: nominal * (1 + eps)}) - effect.torque(motion)) / eps
+        if np.max(np.sqrt(np.mean(dtau**2, axis=0)) / floor) < 0.05:
+            continue   # a drift of this effect could not show within this recording
+        t0 = float(motion.t[0])
+        out.append(Candidate(
+            "drift", f"drift:{key}.{param}", (hours[:, None] * dtau)[:, :, None], ["rate_per_hour"],
+            lambda b, key=key, param=param, t0=t0: {
+                "target": key, "param": param, "kind": "linear",
+                "rate_per_hour": float(b[0]), "t_start_s": t0}, [0],
+            {"target": key, "param": param}))
+    return out
+
+
+def build_candidates(motion: Motion, model: PhysicsModel, residual: np.ndarray,
+                     floor: np.ndarray, regressor: np.ndarray | None = None) -> list[Candidate]:
+    """Every candidate effect for this motion and model.
+
+    Args:
+        motion: measured motion (``ddq`` smoothed).
+        model: the model whose residual is being explained (for drift targets).
+        residual: (N, 6) measured minus model torque (profiles Stribeck velocities).
+        floor: (6,) noise floor per joint (skips drifts too small to see).
+        regressor: (N, 6, 60) of the motion, if already computed.
+    """
+    y = regressor if regressor is not None else motion.robot.regressor(motion.q, motion.dq, motion.ddq)
+    weights = 1.0 / floor**2
+    n = len(motion)
+    cands = [
+        Candidate("coulomb_friction", "coulomb_friction",
+                  _diag(smooth_sign(motion.dq, SIGN_SMOOTHING), range(6)),
+                  [f"fc{j}" for j in range(1, 7)], _per_joint("fc"), list(range(6))),
+        Candidate("viscous_friction", "viscous_friction", _diag(motion.dq, range(6)),
+                  [f"fv{j}" for j in range(1, 7)], _per_joint("fv"), list(range(6))),
+        _stribeck(motion, residual, weights),
+        Candidate("joint_offset", "joint_offset", _diag(np.ones((n, 6)), range(6)),
+                  [f"offset{j}" for j in range(1, 7)], _per_joint("offset"), list(range(6))),
+        _spring(motion),
+        _seal(motion),
+        _body_wall(motion),
+        *(_payload(motion, y, link) for link in PAYLOAD_SITES),
+        _cable(motion),
+        *_drifts(motion, model, floor),
+    ]
+    for cand in cands:
+        if not cand.nonneg:
+            cand.nonneg = _sign_constraints(cand, model)
+    return cands
+
+
+def _current(model: PhysicsModel, name: str, key: str, size: int) -> np.ndarray:
+    """Sum over the model's enabled ``name`` effects of parameter ``key`` (zeros if none)."""
+    out = np.zeros(size)
+    for effect in model.effects.values():
+        if effect.name == name:
+            out = out + np.broadcast_to(np.asarray(effect.param(key), float), (size,))
+    return out
+
+
+def _sign_constraints(cand: Candidate, model: PhysicsModel) -> list[tuple[int, float]]:
+    """Coefficients whose sum with the model's value must stay >= 0 (dissipation, mass)."""
+    name = cand.name
+    if name in ("coulomb_friction", "viscous_friction", "stribeck_friction"):
+        key = {"coulomb_friction": "fc", "viscous_friction": "fv", "stribeck_friction": "fs"}[name]
+        cur = _current(model, name, key, 6)
+        return [(j, float(cur[j])) for j in range(6)]
+    if name == "seal_friction":
+        out = []
+        for i, key in enumerate(("fc", "sigma2", "fs_excess")):
+            cur = _current(model, name, key, 2)
+            out += [(i, float(cur[0])), (3 + i, float(cur[1]))]
+        return sorted(out)
+    if name == "body_wall":
+        k = sum(float(e.params.k0_n_per_m + e.params.k_per_mmhg * e.params.pressure_mmhg)
+                for e in model.effects.values() if e.name == name)
+        d = float(_current(model, name, "damping_ns_per_m", 1)[0])
+        return [(0, k), (1, d)]
+    if name == "cable_coupling":
+        fc, fv = _current(model, name, "motor_fc", 2), _current(model, name, "motor_fv", 2)
+        return [(0, float(fc[0])), (1, float(fc[1])), (2, float(fv[0])), (3, float(fv[1]))]
+    if name == "spring":
+        k = _current(model, name, "stiffness", 6)
+        return [(i, float(k[j])) for i, j in enumerate(SPRING_JOINTS)]
+    return []
+
+
+# ------------------------------------------------------------------ merging into a model
+_ADDITIVE = {
+    "coulomb_friction": ("fc",), "viscous_friction": ("fv",), "stribeck_friction": ("fs",),
+    "joint_offset": ("offset",), "seal_friction": ("fc", "sigma2", "fs_excess"),
+    "cable_coupling": ("motor_fc", "motor_fv"), "payload_mass": ("mass_kg",),
+}
+_NON_NEGATIVE = {"seal_friction": ("fc", "sigma2", "fs_excess"), "payload_mass": ("mass_kg",),
+                 "cable_coupling": ("motor_fc", "motor_fv"),
+                 "body_wall": ("k0_n_per_m", "damping_ns_per_m")}
+
+
+def _add(a, b):
+    if isinstance(a, (list, tuple)):
+        return [float(x) + float(y) for x, y in zip(a, b)]
+    return float(a) + float(b)
+
+
+def _clip(name: str, params: dict[str, Any], notes: list[str]) -> dict[str, Any]:
+    for key in _NON_NEGATIVE.get(name, ()):
+        value = params.get(key)
+        if value is None:
+            continue
+        arr = np.atleast_1d(np.asarray(value, float))
+        if np.any(arr < 0):
+            notes.append(f"{name}.{key} fitted {arr.round(6).tolist()} < 0, clipped to 0")
+            arr = np.maximum(arr, 0.0)
+            params[key] = [float(v) for v in arr] if isinstance(value, (list, tuple)) else float(arr[0])
+    return params
+
+
+def merge_effects(model: PhysicsModel, named: list[tuple[Candidate, dict[str, Any]]],
+                  description: str = "") -> tuple[PhysicsModel, list[str]]:
+    """The model plus named effects (adding to an existing effect's level where one exists).
+
+    Returns:
+        (updated model, notes on clipped or adapted parameters).
+    """
+    data = copy.deepcopy(model.to_dict())
+    notes: list[str] = []
+    keys = {spec.get("id") or spec["name"] for spec in data["effects"]}
+    for cand, params in named:
+        params = dict(params)
+        existing = None
+        for spec in data["effects"]:
+            if (spec["name"] != cand.name or not spec.get("enabled", True) or cand.name == "drift"
+                    or (spec.get("id") or spec["name"]) not in model.effects):
+                continue
+            if cand.name == "payload_mass":
+                current = model.effects[spec.get("id") or spec["name"]].params
+                if current.link != params["link"] or not np.allclose(
+                        current.position_m, params["position_m"], atol=1e-6):
+                    continue
+            existing = spec
+            break
+        if existing is not None and cand.name in _ADDITIVE:
+            full = model.effects[existing.get("id") or existing["name"]].params.model_dump()
+            for key in _ADDITIVE[cand.name]:
+                if key in params:
+                    existing["params"][key] = _add(full[key], params[key])
+            for key, value in params.items():
+                if key not in _ADDITIVE[cand.name]:
+                    existing["params"][key] = value
+            _clip(cand.name, existing["params"], notes)
+            continue
+        key = cand.name if cand.name not in keys else f"{cand.name}_found"
+        if cand.name == "drift":
+            key = f"drift_{params['target']}"
+        while key in keys:
+            key += "_"
+        keys.add(key)
+        spec = {"name": cand.name, "params": _clip(cand.name, params, notes)}
+        if key != cand.name:
+            spec["id"] = key
+        data["effects"].append(spec)
+    if description:
+        data["description"] = description
+    return PhysicsModel.from_dict(data), notes
