@@ -47,15 +47,3 @@ def open_session(config: ZenohConfig):
         return zenoh.open(config.to_zenoh())
     except Exception as exc:  # zenoh.ZError and friends
         raise AdapterError(f"cannot open zenoh session ({config.model_dump()}): {exc}") from exc
-
-
-def joint_state_payload(t_s: float, names, position, velocity, effort,
-                        frame_id: str = "") -> bytes:
-    """A ``sensor_msgs/JointState``-shaped JSON payload for one sample."""
-    ns = int(round(t_s * 1e9))
-    return json.dumps({
-        "header": {"stamp": {"sec": ns // 1_000_000_000, "nanosec": ns % 1_000_000_000},
-                   "frame_id": frame_id},
-        "name": list(names), "position": list(position), "velocity": list(velocity),
-        "effort": list(effort),
-    }, separators=(",", ":")).encode()

@@ -1,8 +1,11 @@
 """The ``wrenchd`` command line.
 
 Sub-commands:
+  serve      the daemon: zenoh in, wrenches out, gated lifelong adaptation, MCAP log
+  echo       print a daemon's live wrenches, events or status
+  config     print the daemon's effective settings
+  robot      stream the simulated PSM over zenoh and record its ground truth
   simulate   run a simulator scenario and write the session to MCAP
-  serve      stream the simulated PSM over zenoh and record the session (embedded default)
   inspect    summarise an MCAP session (topics, samples, truncation)
   effects    list the effect vocabulary of model files, with parameters and defaults
   bench      speed of the estimator (``bench inference``)
@@ -77,6 +80,23 @@ def _cmd_effects(args: argparse.Namespace) -> int:
 
 
 def _cmd_serve(args: argparse.Namespace) -> int:
+    from service.config import load_settings
+    from service.daemon import Daemon
+
+    overrides: dict = {}
+    if args.log_dir:
+        overrides["log"] = {"directory": args.log_dir}
+    if args.scenario or args.seed is not None:
+        sim = {"scenario": args.scenario or "trocar-contact", "seed": args.seed or 0}
+        overrides["simulator"] = sim
+    settings = load_settings(args.config, **overrides)
+    duration = args.duration if args.duration is not None else settings.duration_s
+    if duration is not None and settings.duration_s != duration:
+        settings = settings.model_copy(update={"duration_s": duration})
+    return Daemon(settings).run(duration)
+
+
+def _cmd_robot(args: argparse.Namespace) -> int:
     from adapters.zenoh_io import ZenohConfig
     from service.stream import serve_simulated
 
@@ -84,7 +104,21 @@ def _cmd_serve(args: argparse.Namespace) -> int:
     zenoh = ZenohConfig(mode=args.mode, listen=listen, connect=args.connect or [])
     return serve_simulated(scenario=args.scenario, seed=args.seed, duration_s=args.duration,
                            out_dir=Path(args.out_dir), arm=args.arm, rate_hz=args.rate,
-                           zenoh=zenoh)
+                           zenoh=zenoh, prefix=args.prefix, encoding=args.encoding,
+                           quiet=args.quiet)
+
+
+def _cmd_config(args: argparse.Namespace) -> int:
+    from service.config import load_settings
+
+    print(json.dumps(load_settings(args.config).model_dump(mode="json"), indent=2))
+    return 0
+
+
+def _cmd_echo(args: argparse.Namespace) -> int:
+    from service.echo import echo
+
+    return echo(args)
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
@@ -95,7 +129,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
 #: Modules that add their own sub-commands: each has ``register(subparsers)``, which adds a
 #: parser whose ``func(args) -> int`` runs it.
-COMMAND_MODULES: list[str] = []
+COMMAND_MODULES: list[str] = ["service.train_cmd", "service.reproduce_cmd", "service.real_data_cmd"]
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -124,21 +158,51 @@ def build_parser() -> argparse.ArgumentParser:
     eff = sub.add_parser("effects", help="list the effects a model file can use")
     eff.set_defaults(func=_cmd_effects)
 
-    srv = sub.add_parser("serve", help="stream the simulated PSM over zenoh and record it")
-    srv.add_argument("--scenario", default="trocar-contact", choices=sorted(SCENARIOS))
-    srv.add_argument("--seed", type=int, default=0)
+    srv = sub.add_parser("serve", help="run the daemon (embedded default: simulated PSM1)")
+    srv.add_argument("--config", help="TOML settings (see deploy/config/); env WRENCHD_* overrides")
     srv.add_argument("--duration", type=float, default=None,
                      help="stop after this many seconds (default: until Ctrl-C)")
-    srv.add_argument("--arm", default="PSM1")
-    srv.add_argument("--rate", type=float, default=200.0, help="published rate [Hz]")
-    srv.add_argument("--out-dir", default="sessions", help="where the MCAP session goes")
-    srv.add_argument("--mode", default="peer", choices=["peer", "client", "router"],
-                     help="zenoh mode")
-    srv.add_argument("--listen", action="append", metavar="ENDPOINT",
-                     help="zenoh endpoint to listen on (repeatable; default tcp/127.0.0.1:7447)")
-    srv.add_argument("--connect", action="append", metavar="ENDPOINT",
-                     help="zenoh endpoint to connect to (repeatable)")
+    srv.add_argument("--log-dir", help="MCAP log directory (default: sessions)")
+    srv.add_argument("--scenario", choices=sorted(SCENARIOS), default=None,
+                     help="scenario of the simulated PSM (robot = simulated)")
+    srv.add_argument("--seed", type=int, default=None, help="seed of the simulated PSM")
     srv.set_defaults(func=_cmd_serve)
+
+    cfg = sub.add_parser("config", help="print the effective daemon settings as JSON")
+    cfg.add_argument("--config", help="TOML settings file")
+    cfg.set_defaults(func=_cmd_config)
+
+    rob = sub.add_parser("robot", help="stream the simulated PSM over zenoh and record its truth")
+    rob.add_argument("--scenario", default="trocar-contact", choices=sorted(SCENARIOS))
+    rob.add_argument("--seed", type=int, default=0)
+    rob.add_argument("--duration", type=float, default=None,
+                     help="stop after this many seconds (default: until Ctrl-C)")
+    rob.add_argument("--arm", default="PSM1")
+    rob.add_argument("--prefix", default="dvrk", help="key prefix: {prefix}/{arm}/measured_js")
+    rob.add_argument("--encoding", default="json", choices=["json", "cdr"])
+    rob.add_argument("--rate", type=float, default=200.0, help="published rate [Hz]")
+    rob.add_argument("--out-dir", default="sessions", help="where the MCAP session goes")
+    rob.add_argument("--mode", default="peer", choices=["peer", "client", "router"],
+                     help="zenoh mode")
+    rob.add_argument("--listen", action="append", metavar="ENDPOINT",
+                     help="zenoh endpoint to listen on (repeatable; default tcp/127.0.0.1:7447)")
+    rob.add_argument("--connect", action="append", metavar="ENDPOINT",
+                     help="zenoh endpoint to connect to (repeatable)")
+    rob.add_argument("--quiet", action="store_true", help="no per-second progress lines")
+    rob.set_defaults(func=_cmd_robot)
+
+    ech = sub.add_parser("echo", help="subscribe to a daemon and print live estimates")
+    ech.add_argument("--arm", default="PSM1")
+    ech.add_argument("--prefix", default="dvrk")
+    ech.add_argument("--encoding", default="json", choices=["json", "cdr"])
+    ech.add_argument("--connect", action="append", metavar="ENDPOINT",
+                     help="zenoh endpoint of the daemon (default tcp/127.0.0.1:7447)")
+    ech.add_argument("--count", type=int, default=None, help="stop after N wrenches")
+    ech.add_argument("--every", type=int, default=20, help="print one wrench in N")
+    ech.add_argument("--events", action="store_true", help="also print events")
+    ech.add_argument("--status", action="store_true", help="query the status once and exit")
+    ech.add_argument("--timeout", type=float, default=None, help="give up after [s]")
+    ech.set_defaults(func=_cmd_echo)
 
     bench = sub.add_parser("bench", help="measure speed (medians and percentiles, one run)")
     bench.add_argument("kind", choices=["inference"])

@@ -1,9 +1,9 @@
-"""Embedded default of ``wrenchd serve``: the simulated PSM streamed over zenoh, recorded.
+"""``wrenchd robot``: the simulated PSM streamed over zenoh, its ground truth recorded.
 
-The simulated arm publishes its joint states in real time on ``dvrk/{arm}/measured_js``
-(JSON, ``sensor_msgs/JointState`` fields) and the whole session, with the simulator's ground
-truth, is recorded to MCAP, flushed every second. The estimator daemon of the service issue
-subscribes to the same key.
+The simulated arm publishes its joint states in real time on ``{prefix}/{arm}/measured_js``
+(JSON with ``sensor_msgs/JointState`` fields, or ROS 2 CDR) and the whole session, with the
+simulator's ground truth, is recorded to MCAP each second. ``wrenchd serve`` starts one
+beside the daemon on its embedded default; the daemon subscribes to the same key.
 
 The scenario is simulated in blocks of up to ten minutes; each new block starts a fresh
 trajectory (the next seed), with time continuing.
@@ -19,16 +19,18 @@ from pathlib import Path
 from adapters.mcap_session import SessionWriter
 from adapters.sim.scenarios import run_scenario
 from adapters.sim.simulator import SimulatorConfig
-from adapters.zenoh_io import ZenohConfig, joint_state_payload, open_session
+from adapters.messages import encode_joint_state, stamp_ns_of
+from adapters.zenoh_io import ZenohConfig, open_session
 
-BLOCK_S = 600.0
+BLOCK_S = 120.0
 
 
 
 
 def serve_simulated(scenario: str, seed: int, duration_s: float | None, out_dir: Path,
                     arm: str = "PSM1", rate_hz: float = 200.0,
-                    zenoh: ZenohConfig | None = None) -> int:
+                    zenoh: ZenohConfig | None = None, prefix: str = "dvrk",
+                    encoding: str = "json", quiet: bool = False) -> int:
     """Stream ``scenario`` in real time until ``duration_s`` or SIGINT/SIGTERM. Returns 0."""
     stop = {"flag": False}
 
@@ -38,7 +40,7 @@ def serve_simulated(scenario: str, seed: int, duration_s: float | None, out_dir:
     old = {s: signal.signal(s, _stop) for s in (signal.SIGINT, signal.SIGTERM)}
     out_dir.mkdir(parents=True, exist_ok=True)
     path = out_dir / f"{arm}-{scenario}-seed{seed}.mcap"
-    key = f"dvrk/{arm}/measured_js"
+    key = f"{prefix}/{arm}/measured_js"
     session = open_session(zenoh or ZenohConfig())
     published = 0
     try:
@@ -67,15 +69,17 @@ def serve_simulated(scenario: str, seed: int, duration_s: float | None, out_dir:
                         time.sleep(delay)
                     if stop["flag"]:
                         break
-                    publisher.put(joint_state_payload(js.t[i], js.names, js.position[i],
-                                                      js.velocity[i], js.effort[i]))
+                    publisher.put(encode_joint_state(encoding, stamp_ns_of(js.t[i]), js.names,
+                                                     js.position[i], js.velocity[i],
+                                                     js.effort[i]))
                     published += 1
                     sent = i + 1
                     if js.t[i] - js.t[start] >= 1.0:           # record and report each second
                         writer.write_joint_states(js.slice(start, sent), truth.slice(start, sent))
                         start = sent
-                        print(f"t={js.t[i]:7.1f} s  published {published}  "
-                              f"contact={bool(truth.in_contact[i])}", flush=True)
+                        if not quiet:
+                            print(f"t={js.t[i]:7.1f} s  published {published}  "
+                                  f"contact={bool(truth.in_contact[i])}", flush=True)
                 if sent > start:                                # what was published, no more
                     writer.write_joint_states(js.slice(start, sent), truth.slice(start, sent))
                 offset += length
@@ -85,6 +89,6 @@ def serve_simulated(scenario: str, seed: int, duration_s: float | None, out_dir:
         session.close()
         for s, handler in old.items():
             signal.signal(s, handler)
-    print(f"wrenchd: stopped after {published} samples; session in {path}", flush=True)
+    print(f"wrenchd robot: stopped after {published} samples; session in {path}", flush=True)
     return 0
 

@@ -51,6 +51,8 @@ class EstimatorOutput:
         external_torque: (6,) measured minus predicted [N m; N].
         wrench: (6,) tip wrench [N, N m], base axes, torque about the tip.
         restarted: whether the state was restarted at this sample.
+        step1_torque: (6,) step-1 prediction before any ``Corr`` correction [N m; N].
+        window: (W, 12) the ``Corr`` input history of this sample (None without ``Corr``).
     """
 
     t: float
@@ -58,6 +60,8 @@ class EstimatorOutput:
     external_torque: np.ndarray
     wrench: np.ndarray
     restarted: bool
+    step1_torque: np.ndarray | None = None
+    window: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -110,6 +114,19 @@ class TwoStepEstimator:
         self._window = HistoryWindow(self.correction.window) if self._corr is not None else None
         self.reset_state()
 
+    def swap_correction(self, correction: Corr) -> None:
+        """Replace the ``Corr`` weights between two samples without restarting the state.
+
+        The lifelong adaptation uses this to swap in a better correction net atomically: the
+        LSTM state and the history window carry on.
+        """
+        if not isinstance(correction, Corr) or not isinstance(self.correction, Corr):
+            raise ConfigError("swap_correction needs a Corr estimator and a Corr")
+        if correction.window != self.correction.window:
+            raise ConfigError(f"window {correction.window} != {self.correction.window}")
+        kernel = correction.kernel()
+        self.correction, self._corr = correction, kernel
+
     def reset_state(self) -> None:
         """Forget the past: the next sample starts a new segment."""
         self._state = None
@@ -143,13 +160,15 @@ class TwoStepEstimator:
         if self._state is None:
             self._state = self._recurrent.initial_state(1)
         y, self._state = self._recurrent.step(x[None, :], self._state)
+        step1, window = y[0].astype(np.float64), None
         if self._corr is not None:
             window = self._window.push(x)
             y = self._corr.correct(window[None], y)
         predicted = y[0].astype(np.float64)
         external = tau_measured - predicted
         wrench = self.wrench_map.wrench(q, external)
-        return EstimatorOutput(float(t), predicted, external, wrench, restart)
+        return EstimatorOutput(float(t), predicted, external, wrench, restart, step1,
+                               None if window is None else window.copy())
 
     def predict_torque(self, features: np.ndarray) -> np.ndarray:
         """Predicted torques of one gap-free segment: (T, 12) -> (T, 6), from a fresh state."""

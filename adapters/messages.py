@@ -1,0 +1,270 @@
+"""Wire encodings of joint states and wrenches: JSON mirroring the ROS messages, and ROS 2 CDR.
+
+Both encodings carry ``sensor_msgs/JointState`` and ``geometry_msgs/WrenchStamped``:
+
+* ``json``: an object whose fields mirror the ROS message (``header.stamp.sec``/``nanosec``,
+  ``header.frame_id``, ``name``, ``position``, ``velocity``, ``effort``; ``wrench.force.x..z``,
+  ``wrench.torque.x..z``), plus, on wrenches, wrenchd's extra fields (free-motion flag, model
+  version, ...) under ``"wrenchd"``.
+* ``cdr``: the ROS 2 serialisation (little-endian CDR with its 4-byte encapsulation header),
+  exactly what a ROS 2 node bridged to zenoh (``zenoh-bridge-ros2dds``, ``rmw_zenoh``)
+  publishes, through the maintained ``rosbags`` type store (ROS 2 Humble definitions). CDR has
+  no room for extra fields: the gate flag and model version of a CDR arm go to the events and
+  status keys and to the MCAP log.
+
+Decoders validate everything a pipeline relies on and raise :class:`DataError` with the reason:
+malformed bytes, wrong types, lengths that differ, no samples.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import numpy as np
+
+from models.errors import ConfigError, DataError
+
+Encoding = Literal["json", "cdr"]
+ENCODINGS: tuple[str, ...] = ("json", "cdr")
+_NS = 1_000_000_000
+JOINT_STATE_TYPE = "sensor_msgs/msg/JointState"
+WRENCH_TYPE = "geometry_msgs/msg/WrenchStamped"
+_ENCODE = json.JSONEncoder(separators=(",", ":"), allow_nan=False).encode
+
+
+@dataclass(frozen=True)
+class JointStateMsg:
+    """One decoded joint state.
+
+    Attributes:
+        stamp_ns: header stamp [ns].
+        frame_id: header frame.
+        name: joint names.
+        position, velocity, effort: (n,) float64 [rad; m], [rad/s; m/s], [N m; N].
+    """
+
+    stamp_ns: int
+    frame_id: str
+    name: tuple[str, ...]
+    position: np.ndarray
+    velocity: np.ndarray
+    effort: np.ndarray
+
+    @property
+    def t(self) -> float:
+        """Stamp [s]."""
+        return self.stamp_ns / _NS
+
+
+def _split_ns(stamp_ns: int) -> tuple[int, int]:
+    return stamp_ns // _NS, stamp_ns % _NS
+
+
+def stamp_ns_of(t_s: float) -> int:
+    """Seconds to integer nanoseconds (rounded)."""
+    return int(round(t_s * _NS))
+
+
+# -- JSON ---------------------------------------------------------------------------------
+def _vector(message: dict[str, Any], field: str) -> np.ndarray:
+    value = message.get(field)
+    if not isinstance(value, list):
+        raise DataError(f"field {field!r} must be a list of numbers, got {type(value).__name__}")
+    if not all(type(v) in (int, float) for v in value):
+        raise DataError(f"field {field!r} must hold only numbers")
+    return np.asarray(value, dtype=np.float64)
+
+
+def _header(message: dict[str, Any]) -> tuple[int, str]:
+    header = message.get("header")
+    if not isinstance(header, dict):
+        raise DataError("missing object 'header'")
+    stamp = header.get("stamp")
+    if not isinstance(stamp, dict):
+        raise DataError("missing object 'header.stamp'")
+    sec, nanosec = stamp.get("sec"), stamp.get("nanosec")
+    if type(sec) is not int or type(nanosec) is not int:
+        raise DataError("header.stamp.sec and .nanosec must be integers")
+    if not 0 <= nanosec < _NS:
+        raise DataError(f"header.stamp.nanosec out of range: {nanosec}")
+    frame = header.get("frame_id", "")
+    if not isinstance(frame, str):
+        raise DataError("header.frame_id must be a string")
+    return sec * _NS + nanosec, frame
+
+
+def _decode_json_joint_state(payload: bytes) -> JointStateMsg:
+    try:
+        message = json.loads(payload)
+    except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
+        raise DataError(f"not JSON: {exc}") from None
+    if not isinstance(message, dict):
+        raise DataError(f"a joint state must be a JSON object, got {type(message).__name__}")
+    stamp_ns, frame = _header(message)
+    names = message.get("name", [])
+    if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
+        raise DataError("field 'name' must be a list of strings")
+    return JointStateMsg(stamp_ns, frame, tuple(names), _vector(message, "position"),
+                         _vector(message, "velocity"), _vector(message, "effort"))
+
+
+def _json_joint_state(stamp_ns: int, frame_id: str, names, position, velocity, effort) -> bytes:
+    sec, nanosec = _split_ns(stamp_ns)
+    return _ENCODE({"header": {"stamp": {"sec": sec, "nanosec": nanosec}, "frame_id": frame_id},
+                    "name": list(names), "position": [float(v) for v in position],
+                    "velocity": [float(v) for v in velocity],
+                    "effort": [float(v) for v in effort]}).encode()
+
+
+def _json_wrench(stamp_ns: int, frame_id: str, wrench: np.ndarray,
+                 extra: dict[str, Any] | None) -> bytes:
+    sec, nanosec = _split_ns(stamp_ns)
+    f = [float(v) for v in wrench]
+    message: dict[str, Any] = {
+        "header": {"stamp": {"sec": sec, "nanosec": nanosec}, "frame_id": frame_id},
+        "wrench": {"force": {"x": f[0], "y": f[1], "z": f[2]},
+                   "torque": {"x": f[3], "y": f[4], "z": f[5]}}}
+    if extra:
+        message["wrenchd"] = extra
+    return _ENCODE(message).encode()
+
+
+def _decode_json_wrench(payload: bytes) -> tuple[int, str, np.ndarray, dict[str, Any]]:
+    try:
+        message = json.loads(payload)
+        stamp_ns, frame = _header(message)
+        w = message["wrench"]
+        wrench = np.array([w["force"]["x"], w["force"]["y"], w["force"]["z"],
+                           w["torque"]["x"], w["torque"]["y"], w["torque"]["z"]], dtype=float)
+    except (ValueError, KeyError, TypeError) as exc:
+        raise DataError(f"not a WrenchStamped JSON message: {exc}") from None
+    return stamp_ns, frame, wrench, dict(message.get("wrenchd") or {})
+
+
+# -- CDR ----------------------------------------------------------------------------------
+class _Cdr:
+    """The rosbags type store with the three message types wrenchd needs (built once)."""
+
+    _instance: _Cdr | None = None
+
+    def __init__(self) -> None:
+        from rosbags.typesys import Stores, get_typestore
+
+        self.store = get_typestore(Stores.ROS2_HUMBLE)
+        types = self.store.types
+        self.JointState = types[JOINT_STATE_TYPE]
+        self.WrenchStamped = types[WRENCH_TYPE]
+        self.Wrench = types["geometry_msgs/msg/Wrench"]
+        self.Vector3 = types["geometry_msgs/msg/Vector3"]
+        self.Header = types["std_msgs/msg/Header"]
+        self.Time = types["builtin_interfaces/msg/Time"]
+
+    @classmethod
+    def get(cls) -> _Cdr:
+        if cls._instance is None:
+            cls._instance = cls()
+        return cls._instance
+
+    def header(self, stamp_ns: int, frame_id: str):
+        sec, nanosec = _split_ns(stamp_ns)
+        return self.Header(stamp=self.Time(sec=sec, nanosec=nanosec), frame_id=frame_id)
+
+    def deserialize(self, payload: bytes, typename: str):
+        try:
+            return self.store.deserialize_cdr(bytes(payload), typename)
+        except Exception as exc:      # rosbags raises struct/index/assertion/unicode errors
+            raise DataError(f"not a CDR {typename}: {type(exc).__name__}: {exc}") from None
+
+
+def _cdr_joint_state(stamp_ns: int, frame_id: str, names, position, velocity, effort) -> bytes:
+    c = _Cdr.get()
+    msg = c.JointState(header=c.header(stamp_ns, frame_id), name=list(names),
+                       position=np.asarray(position, dtype=np.float64),
+                       velocity=np.asarray(velocity, dtype=np.float64),
+                       effort=np.asarray(effort, dtype=np.float64))
+    return bytes(c.store.serialize_cdr(msg, JOINT_STATE_TYPE))
+
+
+def _decode_cdr_joint_state(payload: bytes) -> JointStateMsg:
+    msg = _Cdr.get().deserialize(payload, JOINT_STATE_TYPE)
+    stamp = msg.header.stamp
+    if not 0 <= stamp.nanosec < _NS:
+        raise DataError(f"header.stamp.nanosec out of range: {stamp.nanosec}")
+    return JointStateMsg(stamp.sec * _NS + stamp.nanosec, msg.header.frame_id, tuple(msg.name),
+                         np.array(msg.position, dtype=np.float64),
+                         np.array(msg.velocity, dtype=np.float64),
+                         np.array(msg.effort, dtype=np.float64))
+
+
+def _cdr_wrench(stamp_ns: int, frame_id: str, wrench: np.ndarray) -> bytes:
+    c = _Cdr.get()
+    f = [float(v) for v in wrench]
+    msg = c.WrenchStamped(header=c.header(stamp_ns, frame_id), wrench=c.Wrench(
+        force=c.Vector3(x=f[0], y=f[1], z=f[2]), torque=c.Vector3(x=f[3], y=f[4], z=f[5])))
+    return bytes(c.store.serialize_cdr(msg, WRENCH_TYPE))
+
+
+def _decode_cdr_wrench(payload: bytes) -> tuple[int, str, np.ndarray, dict[str, Any]]:
+    msg = _Cdr.get().deserialize(payload, WRENCH_TYPE)
+    w = msg.wrench
+    stamp = msg.header.stamp
+    return (stamp.sec * _NS + stamp.nanosec, msg.header.frame_id,
+            np.array([w.force.x, w.force.y, w.force.z, w.torque.x, w.torque.y, w.torque.z]), {})
+
+
+# -- public -------------------------------------------------------------------------------
+def check_encoding(encoding: str) -> str:
+    if encoding not in ENCODINGS:
+        raise ConfigError(f"unknown encoding {encoding!r}; choose one of {list(ENCODINGS)}")
+    return encoding
+
+
+def encode_joint_state(encoding: str, stamp_ns: int, names, position, velocity, effort,
+                       frame_id: str = "") -> bytes:
+    """A ``sensor_msgs/JointState`` in ``encoding`` (``json`` or ``cdr``)."""
+    if check_encoding(encoding) == "json":
+        return _json_joint_state(stamp_ns, frame_id, names, position, velocity, effort)
+    return _cdr_joint_state(stamp_ns, frame_id, names, position, velocity, effort)
+
+
+def decode_joint_state(encoding: str, payload: bytes) -> JointStateMsg:
+    """Decode and check a joint state: equal, non-zero lengths (names may be empty).
+
+    Raises:
+        DataError: malformed payload, wrong field types, unequal or zero lengths.
+    """
+    if check_encoding(encoding) == "json":
+        msg = _decode_json_joint_state(payload)
+    else:
+        msg = _decode_cdr_joint_state(payload)
+    n = len(msg.position)
+    if n == 0 or len(msg.velocity) != n or len(msg.effort) != n:
+        raise DataError(f"position, velocity and effort must have one equal, non-zero length; "
+                        f"got {len(msg.position)}, {len(msg.velocity)}, {len(msg.effort)}")
+    if msg.name and len(msg.name) != n:
+        raise DataError(f"{len(msg.name)} names for {n} joints")
+    return msg
+
+
+def encode_wrench(encoding: str, stamp_ns: int, wrench: np.ndarray, frame_id: str = "psm_base",
+                  extra: dict[str, Any] | None = None) -> bytes:
+    """A ``geometry_msgs/WrenchStamped`` ``[Fx, Fy, Fz, Tx, Ty, Tz]`` [N, N m]; ``extra`` only
+    in JSON (CDR has no room for it)."""
+    if check_encoding(encoding) == "json":
+        return _json_wrench(stamp_ns, frame_id, wrench, extra)
+    return _cdr_wrench(stamp_ns, frame_id, wrench)
+
+
+def decode_wrench(encoding: str, payload: bytes) -> tuple[int, str, np.ndarray, dict[str, Any]]:
+    """``(stamp_ns, frame_id, wrench (6,), extra)`` of a WrenchStamped payload."""
+    if check_encoding(encoding) == "json":
+        return _decode_json_wrench(payload)
+    return _decode_cdr_wrench(payload)
+
+
+def finite_or_none(x: float) -> float | None:
+    """A float for JSON, ``None`` where it is not finite."""
+    return float(x) if math.isfinite(x) else None

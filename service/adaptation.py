@@ -1,0 +1,270 @@
+"""Lifelong adaptation of the correction net (step 2) on gated free-motion samples.
+
+:class:`Adapter` is the deterministic core, used the same way by the daemon (in a worker
+process, :mod:`service.worker`) and by replay (inline, in simulated time):
+
+* :meth:`Adapter.add` takes free-motion samples (``Corr`` input window, step-1 torque,
+  measured torque). Every ``holdout_every``-th sample goes to a held-out set of *recent* free
+  motion; the others to a replay buffer that mixes a ring of recent samples with a reservoir
+  sample of older ones.
+* :meth:`Adapter.round` fine-tunes a *copy* of the current ``Corr`` for ``round_steps`` Adam
+  steps on mini-batches drawn ``recent_fraction`` from the recent ring and the rest from the
+  reservoir (L2 weight decay as the paper's Corr recipe), scores candidate and current net on
+  the held-out set, and accepts the candidate only if its error is lower by
+  ``min_improvement``: a swap never increases validation error. Accepted nets get the next
+  version number.
+* :meth:`Adapter.on_drift` makes adaptation eager for ``eager_s``: rounds come more often,
+  the held-out set and the recent ring keep only samples after the drift (the old regime is
+  no longer what "recent" means), the reservoir is cleared.
+
+The first net is a fresh ``Corr`` whose output layer is zero: it changes nothing until a round
+has been accepted. Its normalisation is fitted to the first ``min_train_samples`` samples.
+"""
+
+from __future__ import annotations
+
+import copy
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import torch
+from pydantic import BaseModel, ConfigDict, Field
+
+from models.estimator.correction import Corr, CorrConfig
+from models.series import N_JOINTS
+
+
+class AdaptationConfig(BaseModel):
+    """How the correction net follows the set-up."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    enabled: bool = True
+    recent_size: int = Field(default=3000, ge=16, description="recent ring [samples]")
+    reservoir_size: int = Field(default=6000, ge=0, description="older samples kept [samples]")
+    recent_fraction: float = Field(default=0.6, ge=0.0, le=1.0,
+                                   description="share of a batch drawn from the recent ring")
+    holdout_every: int = Field(default=5, ge=2, description="every k-th sample validates")
+    holdout_size: int = Field(default=800, ge=16, description="recent held-out samples")
+    min_train_samples: int = Field(default=600, ge=16,
+                                   description="samples before the first round")
+    round_steps: int = Field(default=40, ge=1, description="Adam steps per round")
+    batch_size: int = Field(default=128, ge=1)
+    lr: float = Field(default=2e-3, gt=0.0, description="Adam learning rate")
+    weight_decay: float = Field(default=0.01, ge=0.0, description="L2 penalty (paper's Corr)")
+    min_improvement: float = Field(default=0.005, ge=0.0, lt=1.0,
+                                   description="relative validation gain needed to swap")
+    interval_s: float = Field(default=2.0, gt=0.0, description="time between rounds [s]")
+    eager_interval_s: float = Field(default=0.5, gt=0.0,
+                                    description="time between rounds after a drift [s]")
+    eager_s: float = Field(default=30.0, ge=0.0, description="eager period after a drift [s]")
+    hidden_size: int = Field(default=64, ge=1, description="Corr hidden units (paper: 256)")
+    window: int = Field(default=10, ge=1, description="Corr history window (paper: 10)")
+    max_cpu_fraction: float = Field(default=0.5, gt=0.0, le=1.0,
+                                    description="duty cycle of the daemon's worker process")
+    seed: int = 0
+
+
+@dataclass
+class RoundResult:
+    """What one round did; ``accepted`` rounds carry the new version."""
+
+    t: float
+    accepted: bool
+    version: int
+    val_before: float
+    val_after: float
+    n_train: int
+    n_holdout: int
+    eager: bool
+    state_dict: dict[str, np.ndarray] | None = None
+
+    def summary(self) -> dict[str, Any]:
+        return {"t": self.t, "accepted": self.accepted, "version": self.version,
+                "val_before": self.val_before, "val_after": self.val_after,
+                "n_train": self.n_train, "n_holdout": self.n_holdout, "eager": self.eager}
+
+
+@dataclass
+class _Ring:
+    """A fixed-capacity ring of (window, step1, measured) rows."""
+
+    capacity: int
+    width: int
+    rows: np.ndarray = field(init=False)
+    n: int = 0
+    head: int = 0
+
+    def __post_init__(self) -> None:
+        self.rows = np.zeros((self.capacity, self.width), dtype=np.float32)
+
+    def push(self, row: np.ndarray) -> None:
+        self.rows[self.head] = row
+        self.head = (self.head + 1) % self.capacity
+        self.n = min(self.n + 1, self.capacity)
+
+    def data(self) -> np.ndarray:
+        return self.rows[:self.n]
+
+    def clear(self) -> None:
+        self.n = self.head = 0
+
+
+def zero_corr(config: CorrConfig, windows: np.ndarray, step1: np.ndarray, seed: int = 0) -> Corr:
+    """A ``Corr`` normalised on the given samples whose correction is exactly zero."""
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(seed)
+        corr = Corr(config)
+    corr.set_normalisation(windows.reshape(-1, windows.shape[-1]), step1)
+    last = corr.net[-1]
+    with torch.no_grad():
+        last.weight.zero_()
+        last.bias.zero_()
+    return corr.eval()
+
+
+def state_to_numpy(corr: Corr) -> dict[str, np.ndarray]:
+    return {k: v.detach().cpu().numpy().copy() for k, v in corr.state_dict().items()}
+
+
+def corr_from_numpy(config: CorrConfig, state: dict[str, np.ndarray]) -> Corr:
+    corr = Corr(config)
+    corr.load_state_dict({k: torch.from_numpy(np.asarray(v)) for k, v in state.items()})
+    return corr.eval()
+
+
+class Adapter:
+    """Replay buffer, fine-tuning rounds, validation and versions (see the module docstring)."""
+
+    def __init__(self, config: AdaptationConfig | None = None,
+                 corr: Corr | None = None, version: int = 0) -> None:
+        self.config = c = config if config is not None else AdaptationConfig()
+        self.corr_config = CorrConfig(window=c.window, hidden_size=c.hidden_size)
+        self.width = c.window * 12 + 2 * N_JOINTS
+        self.recent = _Ring(c.recent_size, self.width)
+        self.reservoir = _Ring(max(c.reservoir_size, 1), self.width)
+        self.holdout: deque[np.ndarray] = deque(maxlen=c.holdout_size)
+        self.corr = corr
+        if corr is not None:
+            self.corr_config = corr.config
+        self.version = version
+        self.seen = 0            # samples offered (for the holdout split and the reservoir)
+        self._evicted = 0        # samples that left the recent ring (reservoir stream length)
+        self._rng = np.random.default_rng(c.seed)
+        self._eager_until = -np.inf
+        self._next_round: float | None = None
+        self.rounds = 0
+        self.accepted = 0
+
+    # -- data ---------------------------------------------------------------------------
+    def add(self, windows: np.ndarray, step1: np.ndarray, measured: np.ndarray) -> None:
+        """Offer free-motion samples: (n, W, 12) windows, (n, 6) step-1 and measured torques."""
+        windows = np.asarray(windows, dtype=np.float32).reshape(len(step1), -1)
+        rows = np.concatenate([windows, np.asarray(step1, np.float32),
+                               np.asarray(measured, np.float32)], axis=1)
+        for row in rows:
+            self.seen += 1
+            if self.seen % self.config.holdout_every == 0:
+                self.holdout.append(row)
+                continue
+            if self.recent.n == self.recent.capacity and self.config.reservoir_size > 0:
+                self._to_reservoir(self.recent.rows[self.recent.head].copy())
+            self.recent.push(row)
+
+    def _to_reservoir(self, row: np.ndarray) -> None:
+        self._evicted += 1
+        if self.reservoir.n < self.reservoir.capacity:
+            self.reservoir.push(row)
+            return
+        k = int(self._rng.integers(0, self._evicted))        # reservoir sampling
+        if k < self.reservoir.capacity:
+            self.reservoir.rows[k] = row
+
+    def on_drift(self, t: float) -> None:
+        """The set-up changed at ``t`` [s]: adapt eagerly, forget the old regime's samples."""
+        self._eager_until = t + self.config.eager_s
+        self._next_round = t
+        self.holdout.clear()
+        self.reservoir.clear()
+        self._evicted = 0
+
+    def eager(self, t: float) -> bool:
+        return t < self._eager_until
+
+    # -- training -----------------------------------------------------------------------
+    def _split(self, rows: np.ndarray) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        w = self.config.window
+        x = torch.from_numpy(rows[:, :w * 12].reshape(-1, w, 12))
+        s = torch.from_numpy(rows[:, w * 12:w * 12 + N_JOINTS])
+        y = torch.from_numpy(rows[:, w * 12 + N_JOINTS:])
+        return x, s, y
+
+    def score(self, corr: Corr, rows: np.ndarray) -> float:
+        """Held-out error: mean over joints of RMSE / tau_std of the corrected torque."""
+        x, s, y = self._split(rows)
+        with torch.no_grad():
+            pred = corr(x, s)
+            rmse = torch.sqrt(torch.mean((pred - y) ** 2, dim=0)) / corr.tau_std
+        return float(rmse.mean())
+
+    def due(self, t: float) -> bool:
+        """Whether a round is due at time ``t`` [s] (and enough data is there)."""
+        if not self.config.enabled or self.recent.n + self.reservoir.n < self._needed():
+            return False
+        if self._next_round is None:
+            self._next_round = t
+        return t >= self._next_round
+
+    def _needed(self) -> int:
+        return self.config.min_train_samples if self.corr is None else 32
+
+    def _batch(self, n: int) -> np.ndarray:
+        c = self.config
+        n_recent = n if self.reservoir.n == 0 else int(round(n * c.recent_fraction))
+        n_recent = min(n_recent, n) if self.recent.n else 0
+        parts = []
+        if n_recent:
+            parts.append(self.recent.data()[self._rng.integers(0, self.recent.n, n_recent)])
+        if n - n_recent and self.reservoir.n:
+            parts.append(self.reservoir.data()[self._rng.integers(0, self.reservoir.n,
+                                                                  n - n_recent)])
+        return np.concatenate(parts)
+
+    def round(self, t: float) -> RoundResult | None:
+        """One fine-tuning round at time ``t`` [s] if due; None otherwise."""
+        if not self.due(t):
+            return None
+        c = self.config
+        eager = self.eager(t)
+        self._next_round = t + (c.eager_interval_s if eager else c.interval_s)
+        if self.corr is None:
+            rows = np.concatenate([self.recent.data(), self.reservoir.data()])
+            x, s, _ = self._split(rows)
+            self.corr = zero_corr(self.corr_config, x.numpy(), s.numpy(), self.config.seed)
+        holdout = np.stack(self.holdout) if len(self.holdout) >= 16 else None
+        candidate = copy.deepcopy(self.corr)
+        candidate.train()
+        opt = torch.optim.Adam(candidate.parameters(), lr=c.lr, weight_decay=c.weight_decay)
+        for _ in range(c.round_steps):
+            x, s, y = self._split(self._batch(c.batch_size))
+            target = (y - s) / candidate.tau_std
+            loss = torch.mean((candidate.correction_normalised(x, s) - target) ** 2)
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+        candidate.eval()
+        self.rounds += 1
+        n_train = self.recent.n + self.reservoir.n
+        if holdout is None:
+            return RoundResult(t, False, self.version, float("nan"), float("nan"), n_train, 0,
+                               eager)
+        before, after = self.score(self.corr, holdout), self.score(candidate, holdout)
+        accepted = after < before * (1.0 - c.min_improvement)
+        if accepted:
+            self.corr = candidate
+            self.version += 1
+            self.accepted += 1
+        return RoundResult(t, accepted, self.version, before, after, n_train, len(holdout),
+                           eager, state_to_numpy(candidate) if accepted else None)

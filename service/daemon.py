@@ -1,0 +1,377 @@
+"""The wrenchd daemon: zenoh in, two-step estimate + gate + lifelong adaptation, zenoh and MCAP out.
+
+One zenoh session per daemon; per arm:
+
+* a subscriber on ``measured_js`` whose callback only stamps the payload with its arrival time
+  and puts it in a bounded ring (no decoding, inference or training in a zenoh callback); a
+  full ring drops its oldest sample and counts it (``dropped``);
+* an estimation thread that drains the ring through the arm's :class:`ArmPipeline`
+  (decode -> validate -> estimate -> gate), publishes the wrench and events, and logs inputs,
+  estimates, events and a status snapshot to the arm's :class:`McapLog`;
+* a queryable ``status`` (JSON: model version, rates, latency percentiles, counters, gate and
+  drift state) and a liveliness token ``alive``.
+
+One adaptation worker process serves all arms (:mod:`service.worker`). With
+``robot = "simulated"`` (the embedded default) the daemon also starts the simulated PSM as a
+separate process publishing on each arm's ``measured_js`` (``wrenchd robot``), recording its
+ground truth beside the logs.
+
+SIGINT/SIGTERM stop cleanly: subscribers are undeclared first (no callback runs after), the
+estimation threads finish what is queued, the worker stops, the logs are finished, the
+session is closed.
+"""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections import deque
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from adapters.mcap_log import TOPIC_ESTIMATE, TOPIC_EVENTS, TOPIC_STATUS, McapLog
+from adapters.mcap_session import TOPIC_JOINT_STATES
+from adapters.messages import decode_joint_state, encode_joint_state, encode_wrench
+from adapters.zenoh_io import ZenohConfig, open_session
+from models.errors import ConfigError, DataError
+from models.estimator.free_space import FreeSpaceModel
+from models.series import JOINT_NAMES
+from service.config import ArmConfig, ServiceSettings
+from service.pipeline import ArmPipeline, Estimate, Event
+from service.worker import ProcessAdaptation, WorkerProcess
+
+_ENCODE = json.JSONEncoder(separators=(",", ":"), allow_nan=False).encode
+
+
+def load_free_space(spec: str) -> FreeSpaceModel:
+    """A shipped step-1 model by name (``base``, ``seal``) or a step-1 checkpoint file."""
+    from models.estimator.checkpoint import load_checkpoint
+    from models.estimator.pretrained import PRETRAINED, load_pretrained
+
+    if spec in PRETRAINED:
+        return load_pretrained(spec)
+    ckpt = load_checkpoint(spec)
+    if ckpt.kind != "free_space":
+        raise ConfigError(f"{spec}: the arm model must be a step-1 checkpoint, got {ckpt.kind}")
+    return ckpt.model
+
+
+class SampleRing:
+    """Bounded FIFO between the zenoh callback and the estimation thread; drops the oldest."""
+
+    def __init__(self, capacity: int) -> None:
+        self._items: deque[tuple[int, bytes]] = deque()
+        self._capacity = capacity
+        self._lock = threading.Lock()
+        self.wake = threading.Event()
+        self.dropped = 0
+
+    def put(self, item: tuple[int, bytes]) -> None:
+        with self._lock:
+            if len(self._items) >= self._capacity:
+                self._items.popleft()
+                self.dropped += 1
+            self._items.append(item)
+        self.wake.set()
+
+    def drain(self) -> list[tuple[int, bytes]]:
+        with self._lock:
+            items = list(self._items)
+            self._items.clear()
+        return items
+
+
+def _percentiles(values) -> dict[str, float | None]:
+    if not values:
+        return {"p50": None, "p99": None, "max": None}
+    a = np.fromiter(values, dtype=float)
+    return {"p50": float(np.percentile(a, 50)), "p99": float(np.percentile(a, 99)),
+            "max": float(a.max())}
+
+
+def _estimate_json(est: Estimate) -> dict[str, Any]:
+    w = est.wrench
+    return {"header": {"stamp": {"sec": est.stamp_ns // 1_000_000_000,
+                                 "nanosec": est.stamp_ns % 1_000_000_000},
+                       "frame_id": "psm_base"},
+            "wrench": {"force": {"x": w[0], "y": w[1], "z": w[2]},
+                       "torque": {"x": w[3], "y": w[4], "z": w[5]}},
+            "free": est.free, "score": min(est.score, 1e9), "model_version": est.model_version,
+            "restarted": est.restarted, "predicted": est.predicted_torque.tolist(),
+            "external": est.external_torque.tolist()}
+
+
+class ArmRuntime:
+    """One arm's subscriber, ring, estimation thread, publishers, queryable, token and log."""
+
+    def __init__(self, cfg: ArmConfig, settings: ServiceSettings, session,
+                 worker: WorkerProcess | None, stop: threading.Event) -> None:
+        self.cfg, self.settings, self.stop = cfg, settings, stop
+        self.name = cfg.name
+        self.keys = cfg.keys.resolve(settings.prefix, cfg.name)
+        backend = (ProcessAdaptation(worker, cfg.name) if worker is not None else None)
+        self.pipeline = ArmPipeline(cfg.name, load_free_space(cfg.model), cfg.pipeline, backend)
+        if cfg.corr_checkpoint:
+            self._load_corr(cfg.corr_checkpoint)
+        self.ring = SampleRing(settings.ring.capacity)
+        self.latency_us: deque[float] = deque(maxlen=5000)
+        self.rate_hz = 0.0
+        self.last: Estimate | None = None
+        self.log = McapLog(cfg.name, settings.log, metadata={
+            "arm": cfg.name, "settings": settings.model_dump(mode="json"),
+            "keys": self.keys})
+        self._log_problem_reported = False
+        self.pub_wrench = session.declare_publisher(self.keys["wrench"])
+        self.pub_events = session.declare_publisher(self.keys["events"])
+        self.queryable = session.declare_queryable(self.keys["status"], self._on_query)
+        self.token = session.liveliness().declare_token(self.keys["alive"])
+        self.sub = session.declare_subscriber(self.keys["measured_js"], self._on_sample)
+        self.thread = threading.Thread(target=self._run, name=f"wrenchd-{cfg.name}", daemon=True)
+
+    def _load_corr(self, path: str) -> None:
+        from models.estimator.checkpoint import load_checkpoint
+
+        ckpt = load_checkpoint(path)
+        if ckpt.kind != "corr":
+            raise ConfigError(f"{path}: corr_checkpoint must be a Corr checkpoint, got {ckpt.kind}")
+        self.pipeline.estimator.swap_correction(ckpt.model)
+        self.pipeline.model_version = int(ckpt.validation.get("version", 0))
+
+    # -- zenoh callbacks (zenoh's threads): keep them trivial ----------------------------
+    def _on_sample(self, sample) -> None:
+        self.ring.put((time.perf_counter_ns(), sample.payload.to_bytes()))
+
+    def _on_query(self, query) -> None:
+        try:
+            query.reply(self.keys["status"], _ENCODE(self.status()))
+        except Exception as exc:  # noqa: BLE001 - a query must never kill the daemon
+            print(f"wrenchd: status query failed: {exc}", file=sys.stderr)
+
+    def status(self) -> dict[str, Any]:
+        s = self.pipeline.status()
+        s["counters"]["dropped"] = self.ring.dropped
+        s["rate_hz"] = self.rate_hz
+        s["latency_us"] = _percentiles(list(self.latency_us))
+        s["encoding"] = self.cfg.encoding
+        s["keys"] = self.keys
+        s["log"] = {"path": str(self.log.path) if self.log.path else None,
+                    "written": self.log.written, "lost": self.log.lost,
+                    "problem": self.log.problem}
+        s["adaptation_worker_alive"] = (self.pipeline.backend.worker.alive
+                                        if isinstance(self.pipeline.backend, ProcessAdaptation)
+                                        else None)
+        return s
+
+    # -- estimation thread ----------------------------------------------------------------
+    def start(self) -> None:
+        self.thread.start()
+
+    def _publish_events(self, events: list[Event]) -> None:
+        for ev in events:
+            body = ev.to_json()
+            try:
+                payload = _ENCODE(body).encode()
+            except (TypeError, ValueError):
+                payload = json.dumps(body, default=str).encode()
+            self.pub_events.put(payload)
+            self.log.write(TOPIC_EVENTS, max(int(ev.t * 1e9), 0), payload)
+
+    def handle(self, arrived_ns: int, payload: bytes) -> None:
+        """One payload through decode -> pipeline -> publish -> log."""
+        enc = self.cfg.encoding
+        try:
+            msg = decode_joint_state(enc, payload)
+        except DataError as exc:
+            ev = self.pipeline.reject(time.time(), "decode", str(exc))
+            self._publish_events([Event(ev.t, ev.kind, {**ev.detail,
+                                                        "payload_bytes": len(payload),
+                                                        "payload_head": payload[:64].hex()})])
+            return
+        est, events = self.pipeline.process(msg)
+        if est is not None:
+            extra = ({"free": est.free, "model_version": est.model_version,
+                      "score": min(est.score, 1e9)} if enc == "json" else None)
+            self.pub_wrench.put(encode_wrench(enc, est.stamp_ns, est.wrench, self.cfg.frame_id,
+                                              extra))
+            self.latency_us.append((time.perf_counter_ns() - arrived_ns) / 1e3)
+            self.last = est
+            names = msg.name if len(msg.name) == len(JOINT_NAMES) else JOINT_NAMES
+            self.log.write(TOPIC_JOINT_STATES, est.stamp_ns, encode_joint_state(
+                "json", est.stamp_ns, names, msg.position, msg.velocity, msg.effort,
+                msg.frame_id))
+            self.log.write_json(TOPIC_ESTIMATE, est.stamp_ns, _estimate_json(est))
+        if events:
+            self._publish_events(events)
+
+    def _run(self) -> None:
+        next_status = time.monotonic() + self.settings.status_interval_s
+        count_at, count_t = 0, time.monotonic()
+        while True:
+            stopping = self.stop.is_set()
+            self.ring.wake.wait(0.05)
+            self.ring.wake.clear()
+            for arrived_ns, payload in self.ring.drain():
+                try:
+                    self.handle(arrived_ns, payload)
+                except Exception as exc:  # noqa: BLE001 - never let one sample kill the arm
+                    ev = self.pipeline.reject(time.time(), "internal",
+                                              f"{type(exc).__name__}: {exc}")
+                    self._publish_events([ev])
+            now = time.monotonic()
+            if now >= next_status:
+                est = self.pipeline.counters.estimated
+                self.rate_hz = (est - count_at) / max(now - count_t, 1e-9)
+                count_at, count_t = est, now
+                next_status = now + self.settings.status_interval_s
+                status = self.status()
+                stamp = self.last.stamp_ns if self.last is not None else 0
+                self.log.write_json(TOPIC_STATUS, stamp, json.loads(json.dumps(status,
+                                                                                default=str)))
+                self._console(status)
+            self.log.tick()
+            if self.log.problem and not self._log_problem_reported:
+                self._log_problem_reported = True
+                self._publish_events([Event(time.time(), "log_error",
+                                            {"arm": self.name, "error": self.log.problem})])
+            elif self.log.problem is None:
+                self._log_problem_reported = False
+            if self.log.problem and self.log.path is not None and self.log._writer is not None:
+                self.log.problem = None                 # a fresh file is open again
+            if stopping:
+                break
+
+    def _console(self, status: dict[str, Any]) -> None:
+        est = self.last
+        if est is None:
+            print(f"{self.name}: waiting for joint states on '{self.keys['measured_js']}'",
+                  flush=True)
+            return
+        c = status["counters"]
+        lat = status["latency_us"]
+        print(f"{self.name} t={est.t:8.2f} s  {self.rate_hz:6.1f} Hz  "
+              f"|F|={np.linalg.norm(est.wrench[:3]):5.2f} N  "
+              f"{'free   ' if est.free else 'contact'}  model v{est.model_version}  "
+              f"p99 {lat['p99'] or 0:7.0f} us  dropped {c['dropped']}  errors {c['errors']}",
+              flush=True)
+
+    def close(self) -> None:
+        """Undeclare in a safe order (the thread must have stopped)."""
+        for entity in (self.sub, self.queryable, self.token, self.pub_wrench, self.pub_events):
+            try:
+                entity.undeclare()
+            except Exception:  # noqa: BLE001 - closing must go on
+                pass
+        self.pipeline.close()
+        self.log.close()
+
+
+def _robot_command(settings: ServiceSettings, arm: str) -> list[str]:
+    sim = settings.simulator
+    endpoints = settings.zenoh.listen or ["tcp/127.0.0.1:7447"]
+    cmd = [sys.executable, "-m", "service.cli", "robot", "--scenario", sim.scenario,
+           "--seed", str(sim.seed), "--arm", arm, "--rate", str(sim.rate_hz),
+           "--prefix", settings.prefix,
+           "--out-dir", str(Path(settings.log.directory) / "robot"), "--quiet"]
+    for ep in endpoints:
+        cmd += ["--connect", ep.replace("0.0.0.0", "127.0.0.1")]
+    if settings.duration_s is not None:
+        cmd += ["--duration", str(settings.duration_s)]
+    return cmd
+
+
+class Daemon:
+    """All arms of one daemon (see the module docstring)."""
+
+    def __init__(self, settings: ServiceSettings) -> None:
+        self.settings = settings
+        self.stop = threading.Event()
+        self.session = None
+        self.worker: WorkerProcess | None = None
+        self.arms: list[ArmRuntime] = []
+        self.robots: list[subprocess.Popen] = []
+
+    def start(self) -> None:
+        s = self.settings
+        adapt = {a.name: a.pipeline.adaptation for a in s.arms
+                 if a.pipeline.adaptation.enabled and a.pipeline.policy.name != "frozen"}
+        if adapt:
+            frac = min(c.max_cpu_fraction for c in adapt.values())
+            self.worker = WorkerProcess(adapt, s.effective_models_dir(), frac)
+        self.session = open_session(s.zenoh)
+        try:
+            for cfg in s.arms:
+                worker = self.worker if cfg.name in adapt else None
+                self.arms.append(ArmRuntime(cfg, s, self.session, worker, self.stop))
+        except Exception:
+            self.close()
+            raise
+        for arm in self.arms:
+            arm.start()
+        if s.robot == "simulated":
+            for arm in self.arms:
+                self.robots.append(subprocess.Popen(_robot_command(s, arm.name)))
+        for arm in self.arms:
+            print(f"wrenchd: {arm.name} ({arm.cfg.encoding}) listening on "
+                  f"'{arm.keys['measured_js']}', publishing wrenches on '{arm.keys['wrench']}', "
+                  f"logging to {s.log.directory}", flush=True)
+
+    def run(self, duration_s: float | None = None) -> int:
+        """Start, serve until SIGINT/SIGTERM or ``duration_s``, stop cleanly. Returns 0."""
+        def _stop(signum, _frame):
+            self.stop.set()
+
+        old = {sig: signal.signal(sig, _stop) for sig in (signal.SIGINT, signal.SIGTERM)}
+        try:
+            self.start()
+            deadline = None if duration_s is None else time.monotonic() + duration_s
+            while not self.stop.wait(0.2):
+                if deadline is not None and time.monotonic() >= deadline:
+                    break
+        finally:
+            self.close()
+            for sig, handler in old.items():
+                signal.signal(sig, handler)
+        return 0
+
+    def close(self) -> None:
+        self.stop.set()
+        for robot in self.robots:
+            if robot.poll() is None:
+                robot.send_signal(signal.SIGINT)
+        for arm in self.arms:
+            try:
+                arm.sub.undeclare()          # no callback after this point
+            except Exception:  # noqa: BLE001
+                pass
+        for arm in self.arms:
+            if arm.thread.is_alive():
+                arm.thread.join(timeout=10.0)
+        for arm in self.arms:
+            arm.close()
+        if self.worker is not None:
+            self.worker.close()
+        for robot in self.robots:
+            try:
+                robot.wait(timeout=10.0)
+            except subprocess.TimeoutExpired:
+                robot.kill()
+        if self.session is not None:
+            self.session.close()
+            self.session = None
+        totals = {a.name: (a.pipeline.counters.estimated, a.ring.dropped,
+                           a.pipeline.counters.errors, [str(p) for p in a.log.paths])
+                  for a in self.arms}
+        for name, (n, dropped, errors, paths) in totals.items():
+            print(f"wrenchd: {name} stopped: {n} estimates, {dropped} dropped, {errors} errors; "
+                  f"log {', '.join(paths) or '(none)'}", flush=True)
+        self.arms = []
+
+
+def robot_zenoh(connect: list[str], listen: list[str], mode: str) -> ZenohConfig:
+    return ZenohConfig(mode=mode, connect=connect, listen=listen)

@@ -1,0 +1,85 @@
+"""``wrenchd echo``: subscribe to a daemon's wrenches (and events) and print them; or query status."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import threading
+import time
+
+import numpy as np
+
+from adapters.messages import decode_wrench
+from adapters.zenoh_io import ZenohConfig, open_session
+from models.errors import DataError
+
+DEFAULT_CONNECT = "tcp/127.0.0.1:7447"
+
+
+def echo(args: argparse.Namespace) -> int:
+    base = f"{args.prefix}/{args.arm}"
+    session = open_session(ZenohConfig(connect=args.connect or [DEFAULT_CONNECT]))
+    try:
+        if args.status:
+            return _status(session, f"{base}/wrenchd/status", args.timeout or 5.0)
+        return _stream(session, base, args)
+    finally:
+        session.close()
+
+
+def _status(session, key: str, timeout: float) -> int:
+    for reply in session.get(key, timeout=timeout):
+        if reply.ok is not None:
+            print(json.dumps(json.loads(reply.ok.payload.to_bytes()), indent=2))
+            return 0
+    print(f"wrenchd echo: no answer from '{key}' within {timeout:g} s")
+    return 1
+
+
+def _stream(session, base: str, args: argparse.Namespace) -> int:
+    done = threading.Event()
+    seen = {"n": 0}
+    lock = threading.Lock()
+
+    def on_wrench(sample) -> None:
+        with lock:
+            seen["n"] += 1
+            n = seen["n"]
+        if args.count is not None and n > args.count:
+            done.set()
+            return
+        if n % max(args.every, 1) == 1 or args.every <= 1:
+            try:
+                stamp_ns, _frame, w, extra = decode_wrench(args.encoding,
+                                                           sample.payload.to_bytes())
+            except DataError as exc:
+                print(f"undecodable wrench: {exc}", flush=True)
+                return
+            flag = ("free" if extra.get("free") else "contact") if "free" in extra else ""
+            print(f"t={stamp_ns / 1e9:9.3f} s  F=[{w[0]:6.2f} {w[1]:6.2f} {w[2]:6.2f}] N  "
+                  f"|F|={np.linalg.norm(w[:3]):5.2f} N  T=[{w[3]:6.3f} {w[4]:6.3f} {w[5]:6.3f}] N m"
+                  f"  {flag} {('v' + str(extra['model_version'])) if 'model_version' in extra else ''}",
+                  flush=True)
+        if args.count is not None and n >= args.count:
+            done.set()
+
+    def on_event(sample) -> None:
+        print(f"event: {sample.payload.to_bytes().decode(errors='replace')}", flush=True)
+
+    subs = [session.declare_subscriber(f"{base}/wrenchd/measured_cf", on_wrench)]
+    if args.events:
+        subs.append(session.declare_subscriber(f"{base}/wrenchd/events", on_event))
+    print(f"wrenchd echo: listening on '{base}/wrenchd/measured_cf' ({args.encoding})",
+          flush=True)
+    deadline = None if args.timeout is None else time.monotonic() + args.timeout
+    try:
+        while not done.wait(0.1):
+            if deadline is not None and time.monotonic() > deadline:
+                break
+    except KeyboardInterrupt:
+        pass
+    finally:
+        for sub in subs:
+            sub.undeclare()
+    print(f"wrenchd echo: {min(seen['n'], args.count or seen['n'])} wrenches", flush=True)
+    return 0 if seen["n"] else 1

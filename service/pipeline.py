@@ -1,0 +1,376 @@
+"""One arm's per-sample pipeline: validate -> estimate -> wrench -> gate -> train offer.
+
+The daemon and replay drive the very same :class:`ArmPipeline`; neither publishing nor
+logging happens here (the caller does that with what :meth:`ArmPipeline.process` returns), and
+adaptation is behind a small :class:`AdaptationBackend` interface: inline in simulated time
+for replay (deterministic), a worker process for the daemon.
+
+Per sample:
+
+1. **validate**: decoded message, six joints, finite, magnitudes within ``ValidationConfig``
+   bounds, time strictly increasing. A bad sample becomes an ``error`` event and a counter;
+   it never reaches the estimator or the training data. A gap longer than the estimator's
+   ``max_gap_s`` restarts the LSTM state (``gap`` event).
+2. **estimate**: :class:`TwoStepEstimator.step_one` (step 1 + ``Corr`` + damped ``J^-T``).
+3. **gate**: :class:`FreeMotionGate` on the residual torque; the flag goes with the estimate.
+4. **train offer** (the policy, :class:`PolicyConfig`): with the ``gated`` policy a free
+   sample waits ``release_delay_s`` in a delay line and reaches the adaptation only if no
+   contact began meanwhile (a contact's onset, still under the gate's bound, is dropped with
+   the rest of the line). ``ungated`` offers every sample at once, ``frozen`` none.
+5. **drift**: free samples feed :class:`ResidualDriftDetector`; a detection is an event and
+   makes the adaptation eager.
+6. **model swap**: accepted rounds from the backend replace the ``Corr`` between two samples.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any, Literal, Protocol
+
+import numpy as np
+import torch
+from pydantic import BaseModel, ConfigDict, Field
+
+from adapters.messages import JointStateMsg
+from models.drift_detector import DriftConfig, ResidualDriftDetector
+from models.errors import DataError
+from models.estimator.correction import Corr, CorrConfig
+from models.estimator.estimator import EstimatorConfig, TwoStepEstimator
+from models.estimator.free_space import FreeSpaceModel
+from models.gate import FreeMotionGate, GateConfig
+from models.series import N_JOINTS
+from service.adaptation import Adapter, AdaptationConfig, RoundResult, corr_from_numpy
+
+POLICIES = ("gated", "ungated", "frozen", "drift-triggered", "periodic-reset")
+
+
+class ValidationConfig(BaseModel):
+    """What a joint state must satisfy to be estimated."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    max_abs_position: tuple[float, ...] = Field(
+        default=(3.2, 3.2, 0.5, 5.0, 3.2, 3.2),
+        description="|q| bound per joint [rad; m on insertion]; beyond is refused")
+    max_abs_velocity: tuple[float, ...] = Field(
+        default=(10.0, 10.0, 2.0, 20.0, 20.0, 20.0), description="|dq| bound [rad/s; m/s]")
+    max_abs_effort: tuple[float, ...] = Field(
+        default=(50.0, 50.0, 200.0, 10.0, 10.0, 10.0), description="|effort| bound [N m; N]")
+
+
+class PolicyConfig(BaseModel):
+    """Which samples reach the adaptation, and when it may run."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    name: Literal["gated", "ungated", "frozen", "drift-triggered", "periodic-reset"] = "gated"
+    release_delay_s: float = Field(default=1.5, ge=0.0,
+                                   description="a free sample waits this long for a contact")
+    reset_every_s: float = Field(default=120.0, gt=0.0,
+                                 description="periodic-reset: back to the initial net [s]")
+
+
+class PipelineConfig(BaseModel):
+    """Everything one arm's pipeline needs besides its networks."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    estimator: EstimatorConfig = Field(default_factory=EstimatorConfig)
+    validation: ValidationConfig = Field(default_factory=ValidationConfig)
+    gate: GateConfig = Field(default_factory=GateConfig)
+    drift: DriftConfig = Field(default_factory=DriftConfig)
+    adaptation: AdaptationConfig = Field(default_factory=AdaptationConfig)
+    policy: PolicyConfig = Field(default_factory=PolicyConfig)
+
+
+@dataclass(frozen=True)
+class Event:
+    """Something worth telling subscribers and the log: ``kind`` and JSON-able ``detail``."""
+
+    t: float
+    kind: str       # error | gap | contact_start | contact_end | drift | model | round | ...
+    detail: dict[str, Any]
+
+    def to_json(self) -> dict[str, Any]:
+        return {"t": self.t, "kind": self.kind, **self.detail}
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """One sample's outputs (arrays (6,) as in :class:`EstimatorOutput`)."""
+
+    index: int
+    stamp_ns: int
+    t: float
+    position: np.ndarray
+    velocity: np.ndarray
+    effort: np.ndarray
+    wrench: np.ndarray
+    predicted_torque: np.ndarray
+    external_torque: np.ndarray
+    free: bool
+    score: float
+    model_version: int
+    restarted: bool
+
+
+@dataclass
+class Counters:
+    received: int = 0
+    estimated: int = 0
+    errors: int = 0
+    gaps: int = 0
+    dropped: int = 0          # set by the daemon (ring buffer overflow)
+    offered: int = 0          # samples given to the adaptation
+    discarded_onsets: int = 0  # free-looking samples dropped because a contact began
+    drifts: int = 0
+    rounds: int = 0
+    swaps: int = 0
+    error_kinds: dict[str, int] = field(default_factory=dict)
+
+
+class AdaptationBackend(Protocol):
+    """Where offered samples go and accepted models come from."""
+
+    def offer(self, windows: np.ndarray, step1: np.ndarray, measured: np.ndarray) -> None: ...
+    def drift(self, t: float) -> None: ...
+    def tick(self, t: float) -> list[RoundResult]: ...
+    def reset(self, t: float) -> None: ...
+    def close(self) -> None: ...
+
+
+class InlineAdaptation:
+    """The :class:`Adapter` run synchronously in the pipeline's (simulated) time: replay."""
+
+    def __init__(self, config: AdaptationConfig) -> None:
+        self.config = config
+        self.adapter = Adapter(config)
+
+    def offer(self, windows, step1, measured) -> None:
+        self.adapter.add(windows, step1, measured)
+
+    def drift(self, t: float) -> None:
+        self.adapter.on_drift(t)
+
+    def tick(self, t: float) -> list[RoundResult]:
+        result = self.adapter.round(t)
+        return [] if result is None else [result]
+
+    def reset(self, t: float) -> None:
+        self.adapter = Adapter(self.config)
+
+    def close(self) -> None:
+        pass
+
+
+def initial_corr(config: AdaptationConfig) -> Corr:
+    """The pipeline's starting ``Corr``: identity normalisation, output exactly zero."""
+    corr = Corr(CorrConfig(window=config.window, hidden_size=config.hidden_size))
+    with torch.no_grad():
+        corr.net[-1].weight.zero_()
+        corr.net[-1].bias.zero_()
+    return corr.eval()
+
+
+class ArmPipeline:
+    """Validate, estimate, gate, offer to adaptation, swap models: one arm.
+
+    Args:
+        arm: name used in events.
+        free_space: the step-1 model (shipped weights or a checkpoint).
+        config: the pipeline's settings.
+        backend: adaptation backend; default inline (replay); None with policy ``frozen``.
+    """
+
+    def __init__(self, arm: str, free_space: FreeSpaceModel, config: PipelineConfig | None = None,
+                 backend: AdaptationBackend | None = None) -> None:
+        self.arm = arm
+        self.config = c = config if config is not None else PipelineConfig()
+        self.policy = c.policy.name
+        self.estimator = TwoStepEstimator(free_space, initial_corr(c.adaptation), c.estimator)
+        self.gate = FreeMotionGate(c.gate)
+        self.drift = ResidualDriftDetector(np.asarray(c.gate.min_std), c.drift)
+        adapt = c.adaptation.enabled and self.policy != "frozen"
+        self.backend = (backend if backend is not None else InlineAdaptation(c.adaptation)
+                        ) if adapt else None
+        self.counters = Counters()
+        self.model_version = 0
+        self.model_validation: float | None = None
+        self._last_ns: int | None = None
+        self._pending: deque[tuple[float, np.ndarray, np.ndarray, np.ndarray]] = deque()
+        self._index = 0
+        self._lim = tuple(np.asarray(v, dtype=float) for v in (
+            c.validation.max_abs_position, c.validation.max_abs_velocity,
+            c.validation.max_abs_effort))
+        self._adapt_until = -np.inf           # drift-triggered: adapt only after a drift
+        self._next_reset: float | None = None
+
+    # -- validation ---------------------------------------------------------------------
+    def _error(self, t: float, kind: str, reason: str) -> Event:
+        self.counters.errors += 1
+        self.counters.error_kinds[kind] = self.counters.error_kinds.get(kind, 0) + 1
+        return Event(t, "error", {"arm": self.arm, "error": kind, "reason": reason})
+
+    def reject(self, t: float, kind: str, reason: str) -> Event:
+        """Count and describe an input refused before it reached the pipeline (decoding)."""
+        self.counters.received += 1
+        return self._error(t, kind, reason)
+
+    def _validate(self, msg: JointStateMsg) -> str | None:
+        n = len(msg.position)
+        if n != N_JOINTS:
+            return f"{n} joints, the PSM pipeline needs {N_JOINTS}"
+        for name, v, lim in zip(("position", "velocity", "effort"),
+                                (msg.position, msg.velocity, msg.effort), self._lim):
+            if not np.isfinite(v).all():
+                return f"{name} contains NaN or Inf"
+            bad = np.abs(v) > lim
+            if bad.any():
+                j = int(np.argmax(bad))
+                return f"{name}[{j + 1}] = {v[j]:.6g} is beyond the bound {lim[j]:g}"
+        return None
+
+    # -- per sample ---------------------------------------------------------------------
+    def process(self, msg: JointStateMsg) -> tuple[Estimate | None, list[Event]]:
+        """Run one decoded joint state through the pipeline."""
+        self.counters.received += 1
+        t = msg.stamp_ns / 1e9
+        events: list[Event] = []
+        reason = self._validate(msg)
+        if reason is not None:
+            return None, [self._error(t, "invalid", reason)]
+        if self._last_ns is not None and msg.stamp_ns <= self._last_ns:
+            kind = "duplicate" if msg.stamp_ns == self._last_ns else "time_backwards"
+            return None, [self._error(t, kind, f"stamp {msg.stamp_ns} ns after "
+                                               f"{self._last_ns} ns")]
+        if (self._last_ns is not None
+                and msg.stamp_ns - self._last_ns > self.config.estimator.max_gap_s * 1e9):
+            self.counters.gaps += 1
+            self._pending.clear()                      # the delay line spans no gap
+            events.append(Event(t, "gap", {"arm": self.arm,
+                                           "gap_s": (msg.stamp_ns - self._last_ns) / 1e9}))
+        self._last_ns = msg.stamp_ns
+        try:
+            out = self.estimator.step_one(t, msg.position, msg.velocity, msg.effort)
+        except DataError as exc:                    # cannot happen after validation; be safe
+            return None, events + [self._error(t, "invalid", str(exc))]
+        if not np.isfinite(out.wrench).all():
+            return None, events + [self._error(t, "non_finite_output", "estimate not finite")]
+        index = self._index
+        self._index += 1
+        self.counters.estimated += 1
+        decision = self.gate.update(index, t, out.external_torque)
+        if decision.recalibrated:
+            events.append(Event(t, "gate_recalibrated", {"arm": self.arm,
+                                                         "max_contact_s":
+                                                         self.config.gate.max_contact_s}))
+        self._contact_events(t, decision.free, decision.contact_started, events)
+        if decision.free and self.drift.update(t, out.external_torque):
+            self.counters.drifts += 1
+            self._adapt_until = t + self.config.adaptation.eager_s
+            events.append(Event(t, "drift", {"arm": self.arm,
+                                             "level": self.drift.level(out.external_torque)}))
+            if self.backend is not None:
+                self.backend.drift(t)
+        self._offer(t, out, msg.effort, decision.free, events)
+        events.extend(self._adapt(t))
+        est = Estimate(index, msg.stamp_ns, t, msg.position, msg.velocity, msg.effort,
+                       out.wrench, out.predicted_torque, out.external_torque, decision.free,
+                       decision.score, self.model_version, out.restarted)
+        return est, events
+
+    def _contact_events(self, t: float, free: bool, started: int, events: list[Event]) -> None:
+        was = getattr(self, "_was_contact", False)
+        now = self.gate.in_contact
+        if now and not was:
+            events.append(Event(t, "contact_start", {"arm": self.arm}))
+        elif was and not now:
+            events.append(Event(t, "contact_end", {"arm": self.arm}))
+        self._was_contact = now
+
+    def _offer(self, t: float, out, effort: np.ndarray, free: bool, events: list[Event]) -> None:
+        if self.backend is None or out.window is None:
+            return
+        if self.policy == "drift-triggered" and t > self._adapt_until:
+            return
+        if self.policy == "ungated":
+            self.counters.offered += 1
+            self.backend.offer(out.window[None], out.step1_torque[None], effort[None])
+            return
+        if not free:
+            if self._pending:
+                self.counters.discarded_onsets += len(self._pending)
+                self._pending.clear()
+            return
+        self._pending.append((t, out.window, out.step1_torque, effort.copy()))
+        delay = self.config.policy.release_delay_s
+        ready = []
+        while self._pending and t - self._pending[0][0] >= delay:
+            ready.append(self._pending.popleft())
+        if ready:
+            self.counters.offered += len(ready)
+            self.backend.offer(np.stack([r[1] for r in ready]), np.stack([r[2] for r in ready]),
+                               np.stack([r[3] for r in ready]))
+
+    def _adapt(self, t: float) -> list[Event]:
+        if self.backend is None:
+            return []
+        events = []
+        if self.policy == "periodic-reset":
+            if self._next_reset is None:
+                self._next_reset = t + self.config.policy.reset_every_s
+            elif t >= self._next_reset:
+                self._next_reset = t + self.config.policy.reset_every_s
+                self.backend.reset(t)
+                self.estimator.swap_correction(initial_corr(self.config.adaptation))
+                self.model_version += 1
+                events.append(Event(t, "model", {"arm": self.arm, "version": self.model_version,
+                                                 "reset": True}))
+        for result in self.backend.tick(t):
+            events.extend(self.apply(result))
+        errors = getattr(self.backend, "errors", None)
+        while errors:
+            events.append(Event(t, "adaptation_error", {"arm": self.arm, "error": errors.pop(0),
+                                                        "serving_version": self.model_version}))
+        return events
+
+    def apply(self, result: RoundResult) -> list[Event]:
+        """Apply one round's outcome (swap the ``Corr`` if accepted); its events."""
+        self.counters.rounds += 1
+        events = [Event(result.t, "round", {"arm": self.arm, **{
+            k: v for k, v in result.summary().items() if k != "t"}})]
+        if result.accepted and result.state_dict is not None:
+            corr = corr_from_numpy(self.estimator.correction.config, result.state_dict)
+            self.estimator.swap_correction(corr)
+            self.counters.swaps += 1
+            self.model_version = result.version
+            self.model_validation = result.val_after
+            events.append(Event(result.t, "model", {
+                "arm": self.arm, "version": result.version, "val_before": result.val_before,
+                "val_after": result.val_after}))
+        return events
+
+    def status(self) -> dict[str, Any]:
+        """JSON-able state: counters, gate, drift, model."""
+        mean, std = self.gate.bounds()
+        c = self.counters
+        return {
+            "arm": self.arm, "policy": self.policy,
+            "model": {"version": self.model_version, "validation": self.model_validation,
+                      "mode": self.estimator.mode},
+            "counters": {"received": c.received, "estimated": c.estimated, "errors": c.errors,
+                         "error_kinds": dict(c.error_kinds), "gaps": c.gaps,
+                         "dropped": c.dropped, "offered": c.offered,
+                         "discarded_onsets": c.discarded_onsets, "drifts": c.drifts,
+                         "rounds": c.rounds, "swaps": c.swaps},
+            "gate": {"in_contact": self.gate.in_contact, "calibrated": self.gate.calibrated,
+                     "contacts": self.gate.contacts, "mean": mean.tolist(),
+                     "std": std.tolist()},
+            "drift": {"detections": self.drift.detections,
+                      "last_t": self.drift.last_detection_t},
+        }
+
+    def close(self) -> None:
+        if self.backend is not None:
+            self.backend.close()

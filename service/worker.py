@@ -1,0 +1,197 @@
+"""The daemon's adaptation worker: one background process fine-tuning every arm's ``Corr``.
+
+Training never runs in a zenoh callback nor in the thread that estimates: it runs here, in a
+separate process (``spawn``), at a lower priority (``nice``), on one torch thread, and with a
+duty cycle of at most ``max_cpu_fraction`` of its wall time, so the estimation threads keep
+their latency. The pipelines send batches of gated samples and drift notices; the worker
+sends back round results (accepted ones with their weights) and errors. An exception in a
+round is reported and the last good model keeps serving; if the process dies, the daemon
+reports it and goes on estimating with the last model.
+
+Accepted versions are checkpointed as ``{models_dir}/{arm}/corr-v{N:04d}.pt`` (the
+estimator's safe checkpoint format) so any version can be loaded again (``corr_checkpoint``
+in the arm's settings).
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import os
+import queue
+import time
+import traceback
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from service.adaptation import AdaptationConfig, RoundResult
+
+_BATCH_S = 0.2          # pipelines send their samples at least this often [s]
+
+
+def _run(inbox: mp.Queue, outbox: mp.Queue, configs: dict[str, dict[str, Any]],
+         models_dir: str | None, max_cpu_fraction: float) -> None:
+    """Worker process main loop."""
+    import torch
+
+    from models.estimator.checkpoint import save_checkpoint
+    from service.adaptation import Adapter
+
+    torch.set_num_threads(1)
+    try:
+        os.nice(10)
+    except OSError:
+        pass
+    adapters = {arm: Adapter(AdaptationConfig(**cfg)) for arm, cfg in configs.items()}
+    t0 = time.monotonic()
+    busy_until = 0.0
+    while True:
+        try:
+            timeout = max(0.02, busy_until - time.monotonic())
+            message = inbox.get(timeout=timeout)
+            messages = [message]
+            while True:
+                try:
+                    messages.append(inbox.get_nowait())
+                except queue.Empty:
+                    break
+        except queue.Empty:
+            messages = []
+        now = time.monotonic() - t0
+        for kind, arm, payload in messages:
+            if kind == "stop":
+                return
+            if arm not in adapters:
+                continue
+            if kind == "samples":
+                adapters[arm].add(*payload)
+            elif kind == "drift":
+                adapters[arm].on_drift(now)
+            elif kind == "reset":
+                adapters[arm] = Adapter(adapters[arm].config)
+            elif kind == "fail":                   # fault injection (tests): next round throws
+                adapters[arm].fail_next = True
+        if time.monotonic() < busy_until:
+            continue
+        for arm, adapter in adapters.items():
+            start = time.monotonic()
+            try:
+                if getattr(adapter, "fail_next", False):
+                    adapter.fail_next = False
+                    raise RuntimeError("injected adaptation failure")
+                result = adapter.round(time.monotonic() - t0)
+            except Exception:  # noqa: BLE001 - reported; the last good model keeps serving
+                outbox.put(("error", arm, traceback.format_exc(limit=5)))
+                continue
+            if result is None:
+                continue
+            if result.accepted and models_dir is not None:
+                try:
+                    path = Path(models_dir) / arm / f"corr-v{result.version:04d}.pt"
+                    path.parent.mkdir(parents=True, exist_ok=True)
+                    save_checkpoint(path, adapter.corr,
+                                    data={"source": "wrenchd lifelong adaptation", "arm": arm},
+                                    validation=result.summary())
+                except OSError as exc:
+                    outbox.put(("error", arm, f"cannot checkpoint version {result.version}: "
+                                              f"{exc}"))
+            outbox.put(("round", arm, result))
+            spent = time.monotonic() - start
+            busy_until = max(busy_until, time.monotonic()
+                             + spent * (1.0 / max_cpu_fraction - 1.0))
+
+
+class WorkerProcess:
+    """The process and its queues; one per daemon."""
+
+    def __init__(self, configs: dict[str, AdaptationConfig], models_dir: str | None,
+                 max_cpu_fraction: float = 0.5) -> None:
+        ctx = mp.get_context("spawn")
+        self.inbox: mp.Queue = ctx.Queue()
+        self.outbox: mp.Queue = ctx.Queue()
+        self.process = ctx.Process(
+            target=_run, name="wrenchd-adaptation", daemon=True,
+            args=(self.inbox, self.outbox, {a: c.model_dump() for a, c in configs.items()},
+                  models_dir, max_cpu_fraction))
+        self.process.start()
+        self._results: dict[str, list[tuple[str, Any]]] = {arm: [] for arm in configs}
+
+    def send(self, kind: str, arm: str, payload: Any = None) -> None:
+        if self.process.is_alive():
+            self.inbox.put((kind, arm, payload))
+
+    def poll(self, arm: str) -> list[tuple[str, Any]]:
+        """Results for ``arm`` received so far (other arms' are kept for them)."""
+        while True:
+            try:
+                kind, who, payload = self.outbox.get_nowait()
+            except (queue.Empty, EOFError, OSError):
+                break
+            self._results.setdefault(who, []).append((kind, payload))
+        out, self._results[arm] = self._results.get(arm, []), []
+        return out
+
+    @property
+    def alive(self) -> bool:
+        return self.process.is_alive()
+
+    def close(self) -> None:
+        try:
+            self.inbox.put(("stop", "", None))
+        except (OSError, ValueError):
+            pass
+        self.process.join(timeout=5.0)
+        if self.process.is_alive():
+            self.process.kill()
+            self.process.join(timeout=2.0)
+        for q in (self.inbox, self.outbox):
+            q.cancel_join_thread()
+            q.close()
+
+
+class ProcessAdaptation:
+    """:class:`~service.pipeline.AdaptationBackend` of one arm, backed by the worker process."""
+
+    def __init__(self, worker: WorkerProcess, arm: str) -> None:
+        self.worker, self.arm = worker, arm
+        self._batch: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        self._sent_at = time.monotonic()
+        self.errors: list[str] = []
+        self._dead_reported = False
+
+    def offer(self, windows, step1, measured) -> None:
+        self._batch.append((np.asarray(windows, np.float32), np.asarray(step1, np.float32),
+                            np.asarray(measured, np.float32)))
+
+    def _send_batch(self) -> None:
+        if self._batch:
+            payload = tuple(np.concatenate(parts) for parts in zip(*self._batch))
+            self._batch = []
+            self.worker.send("samples", self.arm, payload)
+        self._sent_at = time.monotonic()
+
+    def drift(self, t: float) -> None:
+        self._send_batch()
+        self.worker.send("drift", self.arm)
+
+    def reset(self, t: float) -> None:
+        self._batch = []
+        self.worker.send("reset", self.arm)
+
+    def tick(self, t: float) -> list[RoundResult]:
+        if time.monotonic() - self._sent_at >= _BATCH_S:
+            self._send_batch()
+            if not self.worker.alive and not self._dead_reported:
+                self._dead_reported = True
+                self.errors.append("adaptation worker process is not running")
+        results = []
+        for kind, payload in self.worker.poll(self.arm):
+            if kind == "round":
+                results.append(payload)
+            else:
+                self.errors.append(str(payload))
+        return results
+
+    def close(self) -> None:
+        self._batch = []
