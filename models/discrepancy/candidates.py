@@ -60,7 +60,11 @@ PAYLOAD_SITES = {2: tuple(PayloadParams().position_m), 6: (0.0, 0.0, 0.0)}
 #: (R^2 > 0.99 on the WPI trajectory), so one could not be told from the other there.
 SPRING_JOINTS = (3, 4, 5)
 #: Stribeck velocities tried, as multiples of the library default per joint.
-STRIBECK_GRID = (0.25, 0.5, 1.0, 2.0, 4.0)
+STRIBECK_GRID = tuple(float(v) for v in np.geomspace(0.25, 4.0, 13))
+#: Seal presliding travels tried, as multiples of the library default.
+PRESLIDING_GRID = tuple(float(v) for v in np.geomspace(0.25, 8.0, 9))
+#: Seal static-excess ratios ``fs_excess / (fc + fs_excess)`` tried (library default 0.375).
+SEAL_RATIO_GRID = tuple(float(v) for v in np.linspace(0.0, 0.6, 9))
 #: Effects never offered as candidates, and why (reported).
 NOT_CANDIDATES = {
     "external_contact": "a tip wrench during contact episodes, not free motion; its anchor "
@@ -93,10 +97,16 @@ class Candidate:
     #: (coefficient index, the model's current value): physically the sum must be >= 0
     nonneg: list[tuple[int, float]] = field(default_factory=list)
 
-    def inadmissible(self, beta: np.ndarray, bse: np.ndarray, sigmas: float = 3.0) -> str | None:
-        """Why ``beta`` (with standard errors ``bse``) is unphysical, or None if it is not."""
+    def inadmissible(self, beta: np.ndarray, bse: np.ndarray, size: np.ndarray,
+                     sigmas: float = 3.0, material: float = 0.5) -> str | None:
+        """Why ``beta`` is unphysical, or None if it is not.
+
+        A constrained coefficient fails when its sum with the model's value is negative by
+        more than ``sigmas`` standard errors *and* the negative part is material: its torque
+        RMS (``size[i]`` per unit coefficient, in noise floors) reaches ``material``.
+        """
         bad = [self.names[i] for i, base in self.nonneg
-               if base + beta[i] + sigmas * bse[i] < 0]
+               if base + beta[i] + sigmas * bse[i] < 0 and -(base + beta[i]) * size[i] >= material]
         return f"unphysical sign of {', '.join(bad)}" if bad else None
 
     def torque(self, beta: np.ndarray) -> np.ndarray:
@@ -173,22 +183,69 @@ def _spring(motion: Motion) -> Candidate:
                      + [f"c{j + 1}" for j in SPRING_JOINTS], to_params, list(range(m)))
 
 
-def _seal(motion: Motion) -> Candidate:
+def bristle_state(x: np.ndarray, v: np.ndarray, z0: float, ratio: float, vs: float) -> np.ndarray:
+    """Normalised LuGre bristle force ``F / (fc + fs_excess)`` (N,) of a seal-like contact.
+
+    With ``G = fc + fs_excess``, ``ratio = fs_excess / G`` and ``z0 = G / sigma0`` the
+    presliding travel, the LuGre state normalised by ``z0`` relaxes per step towards
+    ``sign(dx) g(v) / G``, ``g(v) / G = 1 - ratio + ratio exp(-(v/vs)^2)``, with exponent
+    ``|dx| / (z0 g(v) / G)`` (the integration of :mod:`~models.physics.effects.seal`), so the
+    bristle force is ``G`` times this column, exactly, for given ``z0``, ``ratio`` and ``vs``.
+    """
+    dx = np.diff(x, prepend=x[:1])
+    level = 1.0 - ratio + ratio * np.exp(-np.square(v / vs))
+    decay = np.exp(-np.abs(dx) / (z0 * level)).tolist()
+    target = (np.sign(dx) * level).tolist()
+    u, out = 0.0, []
+    for e, s in zip(decay, target):
+        u = s + (u - s) * e
+        out.append(u)
+    return np.asarray(out)
+
+
+def _seal(motion: Motion, residual: np.ndarray) -> Candidate:
+    """Seal columns: the bristle force per unit level on insertion and roll, and ``dq`` on
+    insertion (the roll's viscous term, 3.5e-5 N m s/rad by default, cannot be told from its
+    broad Stribeck curve, vs 1.2 rad/s, and stays out).
+
+    The presliding travel ``z0`` (multiples of the library default, :data:`PRESLIDING_GRID`)
+    and the static excess ratio (:data:`SEAL_RATIO_GRID`) are profiled per joint on the
+    residual (best two-column fit); the coefficients are ``G = fc + fs_excess`` and ``sigma2``.
+    """
     d = SealParams()
-    cols = np.zeros((len(motion), 6, 6))
-    names = []
+    cols = np.zeros((len(motion), 6, 3))
+    names: list[str] = []
+    shape = []
     for i, j in enumerate(SEALED_JOINTS):
-        z0 = (d.fc[i] + d.fs_excess[i]) / d.sigma0[i]          # presliding travel [m; rad]
         v = motion.dq[:, j]
-        cols[:, j, 3 * i] = presliding_state(motion.q[:, j], z0)
-        cols[:, j, 3 * i + 1] = v
-        cols[:, j, 3 * i + 2] = np.exp(-np.square(v / d.vs[i])) * smooth_sign(v)
-        names += [f"fc{j + 1}", f"sigma2_{j + 1}", f"fs_excess{j + 1}"]
+        default_z0 = (d.fc[i] + d.fs_excess[i]) / d.sigma0[i]          # [m; rad]
+        best = (np.inf, None, None)
+        for f in PRESLIDING_GRID:
+            for ratio in SEAL_RATIO_GRID:
+                u = bristle_state(motion.q[:, j], v, f * default_z0, ratio, d.vs[i])
+                x = np.column_stack([u, v]) if i == 0 else u[:, None]
+                _, ssr, *_ = np.linalg.lstsq(x, residual[:, j], rcond=None)
+                ssr = float(ssr[0]) if ssr.size else np.inf
+                if ssr < best[0]:
+                    best = (ssr, (f * default_z0, ratio), u)
+        shape.append(best[1])
+        if i == 0:
+            cols[:, j, 0], cols[:, j, 1] = best[2], v
+            names += [f"level{j + 1}", f"sigma2_{j + 1}"]
+        else:
+            cols[:, j, 2] = best[2]
+            names.append(f"level{j + 1}")
 
     def to_params(b):
-        return {"fc": [float(b[0]), float(b[3])], "sigma2": [float(b[1]), float(b[4])],
-                "fs_excess": [float(b[2]), float(b[5])]}
-    return Candidate("seal_friction", "seal_friction", cols, names, to_params, [0, 3])
+        out = {"fc": [], "fs_excess": [], "sigma0": [], "sigma2": [float(b[1]), 0.0]}
+        for level, (z0, ratio) in zip((b[0], b[2]), shape):
+            out["fc"].append(float(level * (1 - ratio)))
+            out["fs_excess"].append(float(level * ratio))
+            out["sigma0"].append(float(max(level, 1e-9) / z0))
+        return out
+    return Candidate("seal_friction", "seal_friction", cols, names, to_params, [0, 2],
+                     {"presliding_travel": [s[0] for s in shape],
+                      "static_ratio": [s[1] for s in shape]})
 
 
 def _body_wall(motion: Motion) -> Candidate:
@@ -291,7 +348,7 @@ def build_candidates(motion: Motion, model: PhysicsModel, residual: np.ndarray,
         Candidate("joint_offset", "joint_offset", _diag(np.ones((n, 6)), range(6)),
                   [f"offset{j}" for j in range(1, 7)], _per_joint("offset"), list(range(6))),
         _spring(motion),
-        _seal(motion),
+        _seal(motion, residual),
         _body_wall(motion),
         *(_payload(motion, y, link) for link in PAYLOAD_SITES),
         _cable(motion),
@@ -320,11 +377,9 @@ def _sign_constraints(cand: Candidate, model: PhysicsModel) -> list[tuple[int, f
         cur = _current(model, name, key, 6)
         return [(j, float(cur[j])) for j in range(6)]
     if name == "seal_friction":
-        out = []
-        for i, key in enumerate(("fc", "sigma2", "fs_excess")):
-            cur = _current(model, name, key, 2)
-            out += [(i, float(cur[0])), (3 + i, float(cur[1]))]
-        return sorted(out)
+        level = _current(model, name, "fc", 2) + _current(model, name, "fs_excess", 2)
+        s2 = _current(model, name, "sigma2", 2)
+        return [(0, float(level[0])), (1, float(s2[0])), (2, float(level[1]))]
     if name == "body_wall":
         k = sum(float(e.params.k0_n_per_m + e.params.k_per_mmhg * e.params.pressure_mmhg)
                 for e in model.effects.values() if e.name == name)
@@ -342,7 +397,7 @@ def _sign_constraints(cand: Candidate, model: PhysicsModel) -> list[tuple[int, f
 # ------------------------------------------------------------------ merging into a model
 _ADDITIVE = {
     "coulomb_friction": ("fc",), "viscous_friction": ("fv",), "stribeck_friction": ("fs",),
-    "joint_offset": ("offset",), "seal_friction": ("fc", "sigma2", "fs_excess"),
+    "joint_offset": ("offset",), "seal_friction": ("fc", "sigma2", "fs_excess"),  # sigma0: set
     "cable_coupling": ("motor_fc", "motor_fv"), "payload_mass": ("mass_kg",),
 }
 _NON_NEGATIVE = {"seal_friction": ("fc", "sigma2", "fs_excess"), "payload_mass": ("mass_kg",),

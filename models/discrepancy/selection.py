@@ -196,7 +196,9 @@ def select(st: Stacked, candidates: list[Candidate]) -> tuple[list[Named], list[
             beta, bse = fit.params[-xc.shape[1]:], fit.bse[-xc.shape[1]:]
             full_b, full_s = np.zeros(cand.columns.shape[2]), np.zeros(cand.columns.shape[2])
             full_b[keep], full_s[keep] = beta, bse
-            why = cand.inadmissible(full_b, full_s)
+            unit = np.zeros(cand.columns.shape[2])          # torque RMS per unit, floors
+            unit[keep] = np.sqrt(np.sum(xc**2, axis=0) / st.n)
+            why = cand.inadmissible(full_b, full_s, unit)
             if why:
                 row["note"] = why
                 continue
