@@ -71,6 +71,11 @@ RECIPES: dict[str, TrainConfig] = {
     "troc": TrainConfig(epochs=1000, lr_halving_epochs=125),
     "xfer": TrainConfig(epochs=1000, lr_halving_epochs=125),
     "corr": TrainConfig(epochs=400, lr_halving_epochs=None, weight_decay=0.01, batch_size=256),
+    # Adaptation in seconds on a CPU (deliverable 6 of issue 3): large batches, a higher
+    # rate halved twice, few epochs, no early stop; values chosen by the side-by-side
+    # measurement in reports/paper-reproduction.
+    "corr-fast": TrainConfig(epochs=30, lr=3e-3, lr_halving_epochs=10, weight_decay=0.01,
+                             batch_size=1024, patience=None),
 }
 
 
@@ -149,25 +154,38 @@ def _detach(state):
     return None if state is None else tuple(_detach(s) for s in state)
 
 
+def training_device(device: str | torch.device | None = None) -> torch.device:
+    """The device to train on: ``device`` if given, else CUDA when present, else the CPU."""
+    if device is not None:
+        return torch.device(device)
+    return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+
+
 def _group_val_losses(model: GroupedTorqueModel, val: list[Segment]) -> np.ndarray:
     """Normalised MSE per joint over the validation segments (eval mode)."""
     model.eval()
     sq, n = 0.0, 0
     with torch.no_grad():
-        dtype = model.in_mean.dtype
+        dtype, device = model.in_mean.dtype, model.in_mean.device
         for x, y in val:
-            ys, _ = model.forward_normalised(torch.as_tensor(x, dtype=dtype)[None])
-            pred = torch.cat(ys, -1)[0].double().numpy()
-            yn = (y - model.out_mean.double().numpy()) / model.out_std.double().numpy()
+            ys, _ = model.forward_normalised(torch.as_tensor(x, dtype=dtype, device=device)[None])
+            pred = torch.cat(ys, -1)[0].double().cpu().numpy()
+            yn = (y - model.out_mean.double().cpu().numpy()) / model.out_std.double().cpu().numpy()
             sq, n = sq + ((pred - yn) ** 2).sum(0), n + len(y)
     return sq / n
 
 
 def train_recurrent(model: GroupedTorqueModel, train: list[Segment], val: list[Segment],
-                    config: TrainConfig, on_epoch: Callable[[int, float], None] | None = None
+                    config: TrainConfig, on_epoch: Callable[[int, float], None] | None = None,
+                    device: str | torch.device | None = "cpu"
                     ) -> tuple[dict[str, Any], list[float]]:
-    """Train ``model`` in place (normalisation already set). Returns (validation, history)."""
+    """Train ``model`` in place (normalisation already set). Returns (validation, history).
+
+    ``device``: where to train (None: CUDA when present); the model ends on the CPU.
+    """
     rng = np.random.default_rng(config.seed)
+    device = training_device(device)
+    model.to(device)
     params = [p for p in model.parameters() if p.requires_grad]
     opt = torch.optim.Adam(params, lr=config.lr, weight_decay=config.weight_decay)
     sched = (torch.optim.lr_scheduler.StepLR(opt, config.lr_halving_epochs, gamma=0.5)
@@ -185,8 +203,8 @@ def train_recurrent(model: GroupedTorqueModel, train: list[Segment], val: list[S
         order = rng.permutation(len(xs))
         for b in range(0, len(order), config.batch_size):
             idx = order[b:b + config.batch_size]
-            xb = torch.as_tensor(xs[idx], dtype=dtype)
-            yb = (torch.as_tensor(ys[idx], dtype=dtype) - mean) / std
+            xb = torch.as_tensor(xs[idx], dtype=dtype, device=device)
+            yb = (torch.as_tensor(ys[idx], dtype=dtype, device=device) - mean) / std
             states = None
             for w in range(config.lane_windows):
                 sl = slice(w * config.window, (w + 1) * config.window)
@@ -217,6 +235,7 @@ def train_recurrent(model: GroupedTorqueModel, train: list[Segment], val: list[S
             break
     for net, state in zip(model.nets, best_state):
         net.load_state_dict(state)
+    model.to("cpu")
     model.eval()
     pred = np.concatenate([model.predict_sequence(x) for x, _ in val])
     target = np.concatenate([y for _, y in val])
@@ -227,8 +246,13 @@ def train_recurrent(model: GroupedTorqueModel, train: list[Segment], val: list[S
 
 def fit_free_space(series: Sequence[JointStates], model_config: FreeSpaceConfig | None = None,
                    config: TrainConfig | None = None, data: dict[str, Any] | None = None,
-                   on_epoch: Callable[[int, float], None] | None = None) -> TrainResult:
-    """Train a step-1 model on free-space series (or on trocar series: the ``Troc`` model)."""
+                   on_epoch: Callable[[int, float], None] | None = None,
+                   device: str | torch.device | None = "cpu") -> TrainResult:
+    """Train a step-1 model on free-space series (or on trocar series: the ``Troc`` model).
+
+    ``device``: where to train (``None``: CUDA when present, else the CPU); the returned model
+    is on the CPU.
+    """
     config = config if config is not None else RECIPES["free-space"]
     train, val = split_series(series, config.val_fraction, config.max_gap_s)
     with torch.random.fork_rng(devices=[]):
@@ -236,7 +260,7 @@ def fit_free_space(series: Sequence[JointStates], model_config: FreeSpaceConfig 
         model = FreeSpaceModel(model_config)
         model.set_input_normalisation(np.concatenate([x for x, _ in train]))
         model.set_output_normalisation(np.concatenate([y for _, y in train]))
-        validation, history = train_recurrent(model, train, val, config, on_epoch)
+        validation, history = train_recurrent(model, train, val, config, on_epoch, device)
     return TrainResult("free_space", model, config, describe_data(series, data, config),
                        validation, history)
 
@@ -244,7 +268,8 @@ def fit_free_space(series: Sequence[JointStates], model_config: FreeSpaceConfig 
 def fit_xfer(base: FreeSpaceModel, series: Sequence[JointStates],
              xfer_config: XferConfig | None = None, config: TrainConfig | None = None,
              data: dict[str, Any] | None = None,
-             on_epoch: Callable[[int, float], None] | None = None) -> TrainResult:
+             on_epoch: Callable[[int, float], None] | None = None,
+             device: str | torch.device | None = "cpu") -> TrainResult:
     """Train the new layers of an ``Xfer`` on ``base`` with trocar series (no contact)."""
     config = config if config is not None else RECIPES["xfer"]
     train, val = split_series(series, config.val_fraction, config.max_gap_s)
@@ -252,57 +277,153 @@ def fit_xfer(base: FreeSpaceModel, series: Sequence[JointStates],
         torch.manual_seed(config.seed)
         model = Xfer(xfer_config, base=base)
         model.set_output_normalisation(np.concatenate([y for _, y in train]))
-        validation, history = train_recurrent(model, train, val, config, on_epoch)
+        validation, history = train_recurrent(model, train, val, config, on_epoch, device)
     return TrainResult("xfer", model, config, describe_data(series, data, config),
                        validation, history)
 
 
 # -- the correction network ---------------------------------------------------------------
-def _corr_arrays(base: FreeSpaceModel, segs: list[Segment], window: int):
-    xs = [x for x, _ in segs]
-    step1 = [base.predict_sequence(x) for x in xs]
-    return (np.concatenate([history_windows(x, window) for x in xs]), np.concatenate(step1),
-            np.concatenate([y for _, y in segs]), np.concatenate(xs))
+def predict_segments(model: GroupedTorqueModel, features: Sequence[np.ndarray]) -> list[np.ndarray]:
+    """Eval-mode torques of several gap-free segments in one batched pass.
+
+    Each segment starts from the zero state, exactly as ``model.predict_sequence`` of each
+    alone: the shorter ones are padded at their end (an LSTM is causal, padding after a
+    segment cannot change its outputs) and the padding is cut off again.
+
+    Args:
+        features: (T_k, 12) raw feature rows per segment.
+    Returns:
+        (T_k, 6) torques per segment, float64.
+    """
+    if not features:
+        return []
+    lengths = [len(x) for x in features]
+    longest = max(lengths)
+    padded = np.stack([np.concatenate([x, np.repeat(x[-1:], longest - len(x), axis=0)])
+                       if len(x) < longest else x for x in features])
+    was_training = model.training
+    model.eval()
+    try:
+        with torch.inference_mode():
+            out = model(torch.as_tensor(padded, dtype=model.in_mean.dtype)).double().numpy()
+    finally:
+        model.train(was_training)
+    return [out[k, :n] for k, n in enumerate(lengths)]
+
+
+def corr_inputs(base: FreeSpaceModel, features: Sequence[np.ndarray], window: int
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """What a ``Corr`` reads, computed once: history windows and step-1 torques.
+
+    Args:
+        base: the frozen step-1 model.
+        features: (T_k, 12) raw feature rows of gap-free segments.
+        window: the Corr's history length [samples].
+    Returns:
+        windows (N, window, 12) and step-1 torques (N, 6), segments concatenated in order.
+    """
+    step1 = predict_segments(base, features)
+    return (np.concatenate([history_windows(x, window) for x in features]),
+            np.concatenate(step1))
+
+
+class CorrTrainer:
+    """Mini-batch Adam on a ``Corr`` over precomputed inputs (see :func:`corr_inputs`).
+
+    One object per correction network, kept across calls: :func:`fit_corr` runs it epoch by
+    epoch; lifelong adaptation can run a few :meth:`steps` on fresh windows whenever it
+    wants (the optimiser's moments carry over). The loss is the MSE of the correction in
+    units of the Corr's ``tau_std`` (its normalisation must already be set); the L2 penalty is
+    Adam's ``weight_decay`` of ``config``.
+
+    Args:
+        corr: the network, trained in place.
+        config: lr, weight_decay, batch_size, grad_clip, lr_halving_epochs and seed are used.
+    """
+
+    def __init__(self, corr: Corr, config: TrainConfig) -> None:
+        self.corr, self.config = corr, config
+        self.optimizer = torch.optim.Adam(corr.parameters(), lr=config.lr,
+                                          weight_decay=config.weight_decay)
+        self.scheduler = (torch.optim.lr_scheduler.StepLR(self.optimizer,
+                                                          config.lr_halving_epochs, gamma=0.5)
+                          if config.lr_halving_epochs else None)
+        self.generator = torch.Generator().manual_seed(config.seed)
+
+    def _tensors(self, windows, step1, measured):
+        dtype = self.corr.in_mean.dtype
+        w, s, y = (torch.as_tensor(a, dtype=dtype) for a in (windows, step1, measured))
+        if not (w.ndim == 3 and s.ndim == 2 and s.shape == y.shape and len(w) == len(s)):
+            raise DataError(f"expected (N, W, 12) windows and (N, 6) step-1 and measured "
+                            f"torques, got {tuple(w.shape)}, {tuple(s.shape)}, {tuple(y.shape)}")
+        return w, s, (y - s) / self.corr.tau_std
+
+    def _step(self, w, s, target) -> float:
+        loss = torch.mean((self.corr.correction_normalised(w, s) - target) ** 2)
+        self.optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        if self.config.grad_clip:
+            torch.nn.utils.clip_grad_norm_(self.corr.parameters(), self.config.grad_clip)
+        self.optimizer.step()
+        return float(loss.detach())
+
+    def epoch(self, windows, step1, measured) -> float:
+        """One pass over the samples in random order; returns the mean batch loss.
+
+        Args:
+            windows: (N, W, 12) history windows; step1, measured: (N, 6) torques [N m; N].
+        """
+        w, s, target = self._tensors(windows, step1, measured)
+        self.corr.train()
+        order = torch.randperm(len(w), generator=self.generator)
+        losses = [self._step(w[idx], s[idx], target[idx])
+                  for idx in torch.split(order, self.config.batch_size)]
+        if self.scheduler is not None:
+            self.scheduler.step()
+        self.corr.eval()
+        return float(np.mean(losses))
+
+    def steps(self, windows, step1, measured, n_steps: int) -> float:
+        """``n_steps`` mini-batches drawn at random from the samples; returns the mean loss."""
+        w, s, target = self._tensors(windows, step1, measured)
+        self.corr.train()
+        losses = []
+        for _ in range(n_steps):
+            idx = torch.randint(len(w), (min(self.config.batch_size, len(w)),),
+                                generator=self.generator)
+            losses.append(self._step(w[idx], s[idx], target[idx]))
+        self.corr.eval()
+        return float(np.mean(losses)) if losses else float("nan")
 
 
 def fit_corr(base: FreeSpaceModel, series: Sequence[JointStates],
              corr_config: CorrConfig | None = None, config: TrainConfig | None = None,
              data: dict[str, Any] | None = None,
              on_epoch: Callable[[int, float], None] | None = None) -> TrainResult:
-    """Train a ``Corr`` on top of the frozen step-1 ``base`` with trocar series (no contact)."""
+    """Train a ``Corr`` on top of the frozen step-1 ``base`` with trocar series (no contact).
+
+    The step-1 torques are computed once (batched over segments), then the correction net
+    trains for ``config.epochs`` on them (:class:`CorrTrainer`), keeping the weights of the
+    best validation epoch. ``recipe("corr")`` is the paper's; ``recipe("corr-fast")`` trains
+    in a few seconds on a CPU (see :data:`RECIPES`).
+    """
     config = config if config is not None else RECIPES["corr"]
     train, val = split_series(series, config.val_fraction, config.max_gap_s)
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(config.seed)
         corr = Corr(corr_config).to(base.in_mean.dtype)
-        w_tr, s_tr, y_tr, x_tr = _corr_arrays(base, train, corr.window)
-        w_va, s_va, y_va, _ = _corr_arrays(base, val, corr.window)
-        corr.set_normalisation(x_tr, s_tr)
+        w_tr, s_tr = corr_inputs(base, [x for x, _ in train], corr.window)
+        w_va, s_va = corr_inputs(base, [x for x, _ in val], corr.window)
+        y_tr = np.concatenate([y for _, y in train])
+        y_va = np.concatenate([y for _, y in val])
+        corr.set_normalisation(np.concatenate([x for x, _ in train]), s_tr)
         dtype = corr.in_mean.dtype
-        w_tr, s_tr, y_tr = (torch.as_tensor(a, dtype=dtype) for a in (w_tr, s_tr, y_tr))
         w_va_t, s_va_t = (torch.as_tensor(a, dtype=dtype) for a in (w_va, s_va))
-        target_tr = (y_tr - s_tr) / corr.tau_std
-        opt = torch.optim.Adam(corr.parameters(), lr=config.lr, weight_decay=config.weight_decay)
-        sched = (torch.optim.lr_scheduler.StepLR(opt, config.lr_halving_epochs, gamma=0.5)
-                 if config.lr_halving_epochs else None)
-        gen = torch.Generator().manual_seed(config.seed)
-        scale = np.maximum(y_tr.double().numpy().std(0), 1e-6)
+        trainer = CorrTrainer(corr, config)
+        scale = np.maximum(y_tr.std(0), 1e-6)
         best, best_state, history, stale = np.inf, copy.deepcopy(corr.state_dict()), [], 0
         for epoch in range(config.epochs):
-            corr.train()
-            order = torch.randperm(len(w_tr), generator=gen)
-            for b in range(0, len(order), config.batch_size):
-                idx = order[b:b + config.batch_size]
-                loss = torch.mean((corr.correction_normalised(w_tr[idx], s_tr[idx])
-                                   - target_tr[idx]) ** 2)
-                opt.zero_grad(set_to_none=True)
-                loss.backward()
-                if config.grad_clip:
-                    torch.nn.utils.clip_grad_norm_(corr.parameters(), config.grad_clip)
-                opt.step()
-            if sched is not None:
-                sched.step()
-            corr.eval()
+            trainer.epoch(w_tr, s_tr, y_tr)
             with torch.no_grad():
                 pred = corr(w_va_t, s_va_t).double().numpy()
             history.append(float(np.mean(np.sqrt(np.mean((pred - y_va) ** 2, 0)) / scale)))
@@ -318,7 +439,7 @@ def fit_corr(base: FreeSpaceModel, series: Sequence[JointStates],
         corr.eval()
         with torch.no_grad():
             pred = corr(w_va_t, s_va_t).double().numpy()
-    report = _rmse_report(pred, y_va, y_tr.double().numpy().mean(0), scale)
+    report = _rmse_report(pred, y_va, y_tr.mean(0), scale)
     step1 = np.sqrt(np.mean((s_va - y_va) ** 2, axis=0))
     validation = {**report, "step1_rmse": step1.tolist(), "epochs_run": len(history)}
     return TrainResult("corr", corr, config, describe_data(series, data, config), validation,
