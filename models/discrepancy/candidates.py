@@ -98,7 +98,7 @@ class Candidate:
     nonneg: list[tuple[int, float]] = field(default_factory=list)
 
     def inadmissible(self, beta: np.ndarray, bse: np.ndarray, size: np.ndarray,
-                     sigmas: float = 3.0, material: float = 0.5) -> str | None:
+                     sigmas: float = 3.0, material: float = 0.2) -> str | None:
         """Why ``beta`` is unphysical, or None if it is not.
 
         A constrained coefficient fails when its sum with the model's value is negative by

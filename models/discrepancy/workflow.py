@@ -34,7 +34,7 @@ from models.discrepancy.candidates import NOT_CANDIDATES, build_candidates, merg
 from models.discrepancy.residual import find, noise_floor
 from models.discrepancy.selection import Named, Stacked, heldout_prediction, select
 from models.errors import DataError
-from models.identification.differentiation import smoothed_acceleration
+from models.identification.differentiation import smoothed_acceleration, zero_phase_velocity
 from models.physics.model import PhysicsModel
 
 #: A named effect "acts on" a joint when its fitted torque there reaches this many floors.
@@ -147,6 +147,7 @@ def run_discrepancy(model: PhysicsModel, t: np.ndarray, q: np.ndarray, dq: np.nd
     t, q, dq, tau = (np.asarray(a, float) for a in (t, q, dq, tau))
     if t.shape[0] < 500:
         raise DataError(f"discrepancy needs at least 500 samples, got {t.shape[0]}")
+    dq, from_position = zero_phase_velocity(t, q, dq)
     ddq = smoothed_acceleration(t, dq)
     motion = model.motion(t, q, dq, ddq)
     residual = tau - model.torque(motion)
@@ -163,5 +164,7 @@ def run_discrepancy(model: PhysicsModel, t: np.ndarray, q: np.ndarray, dq: np.nd
         description=(model.config.description + " + " if model.config.description else "")
         + "effects named by wrenchd discrepancy: "
         + (", ".join(nm.candidate.label for nm in named) or "none"))
+    notes.append("velocity from positions (zero phase) on joints "
+                 f"{[int(j) + 1 for j in np.flatnonzero(from_position)]}, recorded elsewhere")
     return DiscrepancyResult(t, q, dq, ddq, residual, floor, findings, named, torques, pred,
                              updated, table, notes)

@@ -29,7 +29,7 @@ import statsmodels.api as sm
 
 from models.errors import DataError
 from models.identification.base_parameters import independent_columns, offset_columns, structural_base
-from models.identification.differentiation import smoothed_acceleration
+from models.identification.differentiation import smoothed_acceleration, zero_phase_velocity
 from models.physics.effects.base import Motion
 from models.physics.effects.friction import SIGN_SMOOTHING, smooth_sign
 from models.physics.effects.inertial import column_name, inertial_columns
@@ -105,6 +105,7 @@ def identify_free_motion(t: np.ndarray, q: np.ndarray, dq: np.ndarray, tau: np.n
     nominal = nominal if nominal is not None else PhysicsModel()
     rigid_cfg = nominal.config.rigid_body
     base_model = PhysicsModel.from_dict({"rigid_body": rigid_cfg.model_dump(mode="json")})
+    dq, from_position = zero_phase_velocity(t, q, dq)
     ddq = smoothed_acceleration(t, dq)
     motion = base_model.motion(t, q, dq, ddq)
     y = tau - base_model.rigid_body_torque(motion)                  # (N, 6)
@@ -146,4 +147,5 @@ def identify_free_motion(t: np.ndarray, q: np.ndarray, dq: np.ndarray, tau: np.n
         "rigid_body": rigid_cfg.model_dump(mode="json"), "effects": effects})
     return Identification(model, heldout_rms, fit_rms, inertial, unexcited,
                           {"samples": int(len(t)), "noise_sigma": sigma.tolist(),
+                           "velocity_from_position": [int(j) + 1 for j in np.flatnonzero(from_position)],
                            "condition_number": float(fit.condition_number)})
