@@ -23,12 +23,12 @@ class DriftConfig(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     method: Literal["page-hinkley", "adwin"] = "page-hinkley"
-    threshold: float = Field(default=40.0, gt=0.0, description="Page-Hinkley threshold")
-    delta: float = Field(default=0.1, ge=0.0,
+    threshold: float = Field(default=200.0, gt=0.0, description="Page-Hinkley threshold")
+    delta: float = Field(default=0.5, ge=0.0,
                          description="Page-Hinkley tolerated increase [noise-floor units]")
     adwin_delta: float = Field(default=0.002, gt=0.0, lt=1.0, description="ADWIN confidence")
     min_samples: int = Field(default=400, ge=1, description="samples before a detection")
-    cooldown_s: float = Field(default=10.0, ge=0.0, description="quiet time after a detection [s]")
+    cooldown_s: float = Field(default=30.0, ge=0.0, description="quiet time after a detection [s]")
 
 
 class ResidualDriftDetector:

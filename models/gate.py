@@ -1,10 +1,10 @@
 """Free-motion gate: is this sample's residual torque small enough to call it free motion?
 
 The residual (measured minus predicted joint torque) of free motion is noise plus whatever
-the model has not learned yet; a contact adds ``J^T w`` on top. The gate keeps running
-statistics of the residual of the samples it judged free (``river`` exponentially weighted
-mean and variance per joint), scores each sample by its largest per-joint deviation in
-standard deviations, and switches with hysteresis:
+the model has not learned yet; a contact adds ``J^T w`` on top. The gate keeps a slow running
+scale of the residual of the samples it judged free (``river`` exponentially weighted mean of
+the squared residual per joint, i.e. an RMS about zero), scores each sample by its largest
+per-joint residual in those units, and switches with hysteresis:
 
 * free -> contact when the score exceeds ``enter_sigma`` on ``enter_samples`` consecutive
   samples (one noisy sample does not start a contact);
@@ -12,7 +12,10 @@ standard deviations, and switches with hysteresis:
   force passes through zero is not chopped into pieces).
 
 The statistics only learn from free samples, so a contact cannot widen the bounds that detect
-it. A floor ``min_std`` (per joint, N m or N) keeps the bounds from collapsing onto the noise
+it. They are centred on zero, not on a running mean, and slow (``alpha``: a time constant of
+tens of seconds): a contact's force builds up over a second or more, and a fast running mean
+would follow it up and never see it (measured: with a 2.5 s mean, 4-9 N contacts scored
+2 sigma). A bias of the residual is the correction net's job, not the gate's. A floor ``min_std`` (per joint, N m or N) keeps the bounds from collapsing onto the noise
 of a perfectly adapted model. A gate stuck in contact for longer than ``max_contact_s`` is
 re-calibrated (its mean moves to the present residual): a lasting change of the set-up (a new
 insufflation pressure) must not look like an endless contact; the pipeline reports it.
@@ -45,9 +48,9 @@ class GateConfig(BaseModel):
                               description="score under which a contact may end [std]")
     enter_samples: int = Field(default=3, ge=1, description="consecutive samples above enter")
     exit_s: float = Field(default=0.5, ge=0.0, description="time below exit to end a contact [s]")
-    alpha: float = Field(default=0.002, gt=0.0, lt=1.0,
-                         description="weight of a new free sample in the running statistics")
-    warmup_samples: int = Field(default=200, ge=1,
+    alpha: float = Field(default=2e-4, gt=0.0, lt=1.0,
+                         description="weight of a new free sample in the running RMS")
+    warmup_samples: int = Field(default=1000, ge=1,
                                 description="samples before the gate may call anything free")
     min_std: tuple[float, ...] = Field(
         default=(0.02, 0.02, 0.1, 0.002, 0.002, 0.002),
@@ -88,8 +91,8 @@ class FreeMotionGate:
     def reset(self) -> None:
         """Forget the statistics (a new set-up)."""
         a = self.config.alpha
-        self._mean = [stats.EWMean(fading_factor=a) for _ in range(N_JOINTS)]
-        self._var = [stats.EWVar(fading_factor=a) for _ in range(N_JOINTS)]
+        self._msq = [stats.EWMean(fading_factor=a) for _ in range(N_JOINTS)]
+        self._warm = [stats.Mean() for _ in range(N_JOINTS)]     # plain mean while warming up
         self._seen = 0
         self._in_contact = False
         self._above = 0
@@ -107,22 +110,29 @@ class FreeMotionGate:
         return self._seen >= self.config.warmup_samples
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        """Current mean and std (floored) of the free residual, (6,) each."""
-        mean = np.array([m.get() for m in self._mean])
-        std = np.sqrt(np.array([v.get() for v in self._var]))
-        return mean, np.maximum(std, self._floor)
+        """Centre (zeros) and scale (floored RMS) of the free residual, (6,) each."""
+        source = self._warm if self._seen < self.config.warmup_samples else self._msq
+        rms = np.sqrt(np.array([m.get() for m in source]))
+        return np.zeros(N_JOINTS), np.maximum(rms, self._floor)
 
     def _learn(self, residual: np.ndarray) -> None:
+        warming = self._seen < self.config.warmup_samples
         for j in range(N_JOINTS):
-            self._mean[j].update(float(residual[j]))
-            self._var[j].update(float(residual[j]))
+            sq = float(residual[j]) ** 2
+            if warming:
+                self._warm[j].update(sq)
+                if self._seen == self.config.warmup_samples - 1:    # seed the slow average
+                    self._msq[j] = stats.EWMean(fading_factor=self.config.alpha)
+                    self._msq[j].update(self._warm[j].get())
+            else:
+                self._msq[j].update(sq)
         self._seen += 1
 
     def update(self, index: int, t: float, residual: np.ndarray) -> GateDecision:
         """Judge sample ``index`` at time ``t`` [s] with residual torques (6,)."""
         cfg = self.config
         mean, std = self.bounds()
-        score = float(np.max(np.abs(residual - mean) / std)) if self._seen else 0.0
+        score = float(np.max(np.abs(residual) / std)) if self._seen else 0.0
         if not self.calibrated:                          # learn the level first, call nothing
             self._learn(residual)
             return GateDecision(False, score, -1)
@@ -147,9 +157,9 @@ class FreeMotionGate:
         else:
             self._below_since = None
         if t - self._contact_t0 > cfg.max_contact_s:
-            for j in range(N_JOINTS):                        # re-centre on the present level
-                self._mean[j] = stats.EWMean(fading_factor=cfg.alpha)
-                self._mean[j].update(float(residual[j]))
+            for j in range(N_JOINTS):                  # re-scale on the present level
+                self._msq[j] = stats.EWMean(fading_factor=cfg.alpha)
+                self._msq[j].update(float(residual[j]) ** 2)
             self._in_contact, self._above = False, 0
             start, self._contact_start = self._contact_start, -1
             return GateDecision(False, score, start, recalibrated=True)

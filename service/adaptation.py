@@ -13,12 +13,15 @@ process, :mod:`service.worker`) and by replay (inline, in simulated time):
   the held-out set, and accepts the candidate only if its error is lower by
   ``min_improvement``: a swap never increases validation error. Accepted nets get the next
   version number.
-* :meth:`Adapter.on_drift` makes adaptation eager for ``eager_s``: rounds come more often,
-  the held-out set and the recent ring keep only samples after the drift (the old regime is
-  no longer what "recent" means), the reservoir is cleared.
+* :meth:`Adapter.on_drift` makes adaptation eager for ``eager_s``: rounds come more often and
+  the held-out set restarts with samples after the drift (the old regime is no longer what
+  "recent" means).
 
 The first net is a fresh ``Corr`` whose output layer is zero: it changes nothing until a round
-has been accepted. Its normalisation is fitted to the first ``min_train_samples`` samples.
+has been accepted. Its input and torque normalisation is the step-1 model's (fitted on the
+whole free-space workspace), so a net trained on a few seconds of motion does not see inputs
+many "standard deviations" away when the arm moves elsewhere; without it, the first
+``min_train_samples`` samples set it.
 """
 
 from __future__ import annotations
@@ -112,12 +115,26 @@ class _Ring:
         self.n = self.head = 0
 
 
-def zero_corr(config: CorrConfig, windows: np.ndarray, step1: np.ndarray, seed: int = 0) -> Corr:
-    """A ``Corr`` normalised on the given samples whose correction is exactly zero."""
+def normalisation_of(free_space) -> dict[str, np.ndarray]:
+    """The step-1 model's normalisation as a ``Corr`` normalisation (plain arrays)."""
+    return {"in_mean": free_space.in_mean.double().numpy().copy(),
+            "in_std": free_space.in_std.double().numpy().copy(),
+            "tau_mean": free_space.out_mean.double().numpy().copy(),
+            "tau_std": free_space.out_std.double().numpy().copy()}
+
+
+def zero_corr(config: CorrConfig, windows: np.ndarray, step1: np.ndarray, seed: int = 0,
+              normalisation: dict[str, np.ndarray] | None = None) -> Corr:
+    """A ``Corr`` whose correction is exactly zero, normalised by ``normalisation`` or else
+    on the given samples."""
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(seed)
         corr = Corr(config)
-    corr.set_normalisation(windows.reshape(-1, windows.shape[-1]), step1)
+    if normalisation is not None:
+        for name, value in normalisation.items():
+            getattr(corr, name).copy_(torch.as_tensor(np.asarray(value), dtype=torch.float32))
+    else:
+        corr.set_normalisation(windows.reshape(-1, windows.shape[-1]), step1)
     last = corr.net[-1]
     with torch.no_grad():
         last.weight.zero_()
@@ -139,8 +156,10 @@ class Adapter:
     """Replay buffer, fine-tuning rounds, validation and versions (see the module docstring)."""
 
     def __init__(self, config: AdaptationConfig | None = None,
-                 corr: Corr | None = None, version: int = 0) -> None:
+                 corr: Corr | None = None, version: int = 0,
+                 normalisation: dict[str, np.ndarray] | None = None) -> None:
         self.config = c = config if config is not None else AdaptationConfig()
+        self.normalisation = normalisation
         self.corr_config = CorrConfig(window=c.window, hidden_size=c.hidden_size)
         self.width = c.window * 12 + 2 * N_JOINTS
         self.recent = _Ring(c.recent_size, self.width)
@@ -187,8 +206,6 @@ class Adapter:
         self._eager_until = t + self.config.eager_s
         self._next_round = t
         self.holdout.clear()
-        self.reservoir.clear()
-        self._evicted = 0
 
     def eager(self, t: float) -> bool:
         return t < self._eager_until
@@ -242,7 +259,8 @@ class Adapter:
         if self.corr is None:
             rows = np.concatenate([self.recent.data(), self.reservoir.data()])
             x, s, _ = self._split(rows)
-            self.corr = zero_corr(self.corr_config, x.numpy(), s.numpy(), self.config.seed)
+            self.corr = zero_corr(self.corr_config, x.numpy(), s.numpy(), self.config.seed,
+                                  self.normalisation)
         holdout = np.stack(self.holdout) if len(self.holdout) >= 16 else None
         candidate = copy.deepcopy(self.corr)
         candidate.train()

@@ -43,6 +43,7 @@ from models.errors import ConfigError, DataError
 from models.estimator.free_space import FreeSpaceModel
 from models.series import JOINT_NAMES
 from service.config import ArmConfig, ServiceSettings
+from service.adaptation import normalisation_of
 from service.pipeline import ArmPipeline, Estimate, Event
 from service.worker import ProcessAdaptation, WorkerProcess
 
@@ -111,12 +112,13 @@ class ArmRuntime:
     """One arm's subscriber, ring, estimation thread, publishers, queryable, token and log."""
 
     def __init__(self, cfg: ArmConfig, settings: ServiceSettings, session,
-                 worker: WorkerProcess | None, stop: threading.Event) -> None:
+                 worker: WorkerProcess | None, stop: threading.Event,
+                 free_space: FreeSpaceModel) -> None:
         self.cfg, self.settings, self.stop = cfg, settings, stop
         self.name = cfg.name
         self.keys = cfg.keys.resolve(settings.prefix, cfg.name)
         backend = (ProcessAdaptation(worker, cfg.name) if worker is not None else None)
-        self.pipeline = ArmPipeline(cfg.name, load_free_space(cfg.model), cfg.pipeline, backend)
+        self.pipeline = ArmPipeline(cfg.name, free_space, cfg.pipeline, backend)
         if cfg.corr_checkpoint:
             self._load_corr(cfg.corr_checkpoint)
         self.ring = SampleRing(settings.ring.capacity)
@@ -300,14 +302,17 @@ class Daemon:
         s = self.settings
         adapt = {a.name: a.pipeline.adaptation for a in s.arms
                  if a.pipeline.adaptation.enabled and a.pipeline.policy.name != "frozen"}
+        self.models = {a.name: load_free_space(a.model) for a in s.arms}
         if adapt:
             frac = min(c.max_cpu_fraction for c in adapt.values())
-            self.worker = WorkerProcess(adapt, s.effective_models_dir(), frac)
+            norms = {name: normalisation_of(self.models[name]) for name in adapt}
+            self.worker = WorkerProcess(adapt, s.effective_models_dir(), frac, norms)
         self.session = open_session(s.zenoh)
         try:
             for cfg in s.arms:
                 worker = self.worker if cfg.name in adapt else None
-                self.arms.append(ArmRuntime(cfg, s, self.session, worker, self.stop))
+                self.arms.append(ArmRuntime(cfg, s, self.session, worker, self.stop,
+                                            self.models[cfg.name]))
         except Exception:
             self.close()
             raise

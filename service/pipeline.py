@@ -13,6 +13,10 @@ Per sample:
    ``max_gap_s`` restarts the LSTM state (``gap`` event).
 2. **estimate**: :class:`TwoStepEstimator.step_one` (step 1 + ``Corr`` + damped ``J^-T``).
 3. **gate**: :class:`FreeMotionGate` on the residual torque; the flag goes with the estimate.
+   The first ``calibration_s`` of a session are the contact-free calibration of step 2 that
+   the two-step paper assumes (the surgeon moves the instrument in the patient without
+   touching tissue): every sample is taken as free and trains the correction net eagerly;
+   at its end the gate re-learns its bounds on the calibrated residual (``calibrated`` event).
 4. **train offer** (the policy, :class:`PolicyConfig`): with the ``gated`` policy a free
    sample waits ``release_delay_s`` in a delay line and reaches the adaptation only if no
    contact began meanwhile (a contact's onset, still under the gate's bound, is dropped with
@@ -38,9 +42,10 @@ from models.errors import DataError
 from models.estimator.correction import Corr, CorrConfig
 from models.estimator.estimator import EstimatorConfig, TwoStepEstimator
 from models.estimator.free_space import FreeSpaceModel
-from models.gate import FreeMotionGate, GateConfig
+from models.gate import FreeMotionGate, GateConfig, GateDecision
 from models.series import N_JOINTS
-from service.adaptation import Adapter, AdaptationConfig, RoundResult, corr_from_numpy
+from service.adaptation import (Adapter, AdaptationConfig, RoundResult, corr_from_numpy,
+                                normalisation_of)
 
 POLICIES = ("gated", "ungated", "frozen", "drift-triggered", "periodic-reset")
 
@@ -82,6 +87,8 @@ class PipelineConfig(BaseModel):
     drift: DriftConfig = Field(default_factory=DriftConfig)
     adaptation: AdaptationConfig = Field(default_factory=AdaptationConfig)
     policy: PolicyConfig = Field(default_factory=PolicyConfig)
+    calibration_s: float = Field(default=60.0, ge=0.0,
+                                 description="contact-free calibration at the start [s]")
 
 
 @dataclass(frozen=True)
@@ -143,9 +150,10 @@ class AdaptationBackend(Protocol):
 class InlineAdaptation:
     """The :class:`Adapter` run synchronously in the pipeline's (simulated) time: replay."""
 
-    def __init__(self, config: AdaptationConfig) -> None:
-        self.config = config
-        self.adapter = Adapter(config)
+    def __init__(self, config: AdaptationConfig,
+                 normalisation: dict[str, np.ndarray] | None = None) -> None:
+        self.config, self.normalisation = config, normalisation
+        self.adapter = Adapter(config, normalisation=normalisation)
 
     def offer(self, windows, step1, measured) -> None:
         self.adapter.add(windows, step1, measured)
@@ -158,7 +166,7 @@ class InlineAdaptation:
         return [] if result is None else [result]
 
     def reset(self, t: float) -> None:
-        self.adapter = Adapter(self.config)
+        self.adapter = Adapter(self.config, normalisation=self.normalisation)
 
     def close(self) -> None:
         pass
@@ -192,8 +200,9 @@ class ArmPipeline:
         self.gate = FreeMotionGate(c.gate)
         self.drift = ResidualDriftDetector(np.asarray(c.gate.min_std), c.drift)
         adapt = c.adaptation.enabled and self.policy != "frozen"
-        self.backend = (backend if backend is not None else InlineAdaptation(c.adaptation)
-                        ) if adapt else None
+        self.backend = (backend if backend is not None else InlineAdaptation(
+            c.adaptation, normalisation_of(free_space))) if adapt else None
+        self.on_offer = None      # optional hook: called with the times [s] of offered samples
         self.counters = Counters()
         self.model_version = 0
         self.model_validation: float | None = None
@@ -205,6 +214,7 @@ class ArmPipeline:
             c.validation.max_abs_effort))
         self._adapt_until = -np.inf           # drift-triggered: adapt only after a drift
         self._next_reset: float | None = None
+        self._calibration_end: float | None = None
 
     # -- validation ---------------------------------------------------------------------
     def _error(self, t: float, kind: str, reason: str) -> Event:
@@ -261,24 +271,50 @@ class ArmPipeline:
         self._index += 1
         self.counters.estimated += 1
         decision = self.gate.update(index, t, out.external_torque)
+        calibrating = self._calibrating(t, events)
+        if calibrating:
+            decision = GateDecision(True, decision.score, -1)
         if decision.recalibrated:
             events.append(Event(t, "gate_recalibrated", {"arm": self.arm,
                                                          "max_contact_s":
                                                          self.config.gate.max_contact_s}))
         self._contact_events(t, decision.free, decision.contact_started, events)
-        if decision.free and self.drift.update(t, out.external_torque):
+        if decision.free and not calibrating and self.drift.update(t, out.external_torque):
             self.counters.drifts += 1
             self._adapt_until = t + self.config.adaptation.eager_s
             events.append(Event(t, "drift", {"arm": self.arm,
                                              "level": self.drift.level(out.external_torque)}))
             if self.backend is not None:
                 self.backend.drift(t)
-        self._offer(t, out, msg.effort, decision.free, events)
+        self._offer(t, out, msg.effort, decision.free, events, calibrating)
         events.extend(self._adapt(t))
         est = Estimate(index, msg.stamp_ns, t, msg.position, msg.velocity, msg.effort,
                        out.wrench, out.predicted_torque, out.external_torque, decision.free,
                        decision.score, self.model_version, out.restarted)
         return est, events
+
+    def _calibrating(self, t: float, events: list[Event]) -> bool:
+        if self._calibration_end is None:
+            self._calibration_end = t + self.config.calibration_s
+            if self.config.calibration_s > 0:
+                if self.backend is not None:
+                    self.backend.drift(t)               # eager from the start
+                events.append(Event(t, "calibrating", {"arm": self.arm,
+                                                       "until": self._calibration_end}))
+        if not np.isfinite(self._calibration_end):
+            return False
+        if t < self._calibration_end:
+            return True
+        self._calibration_end = np.inf
+        if self.config.calibration_s > 0:
+            self.gate.reset()                           # re-learn on the calibrated residual
+            events.append(Event(t, "calibrated", {"arm": self.arm,
+                                                  "model_version": self.model_version}))
+        return False
+
+    @property
+    def calibrating(self) -> bool:
+        return self._calibration_end is None or np.isfinite(self._calibration_end)
 
     def _contact_events(self, t: float, free: bool, started: int, events: list[Event]) -> None:
         was = getattr(self, "_was_contact", False)
@@ -289,14 +325,17 @@ class ArmPipeline:
             events.append(Event(t, "contact_end", {"arm": self.arm}))
         self._was_contact = now
 
-    def _offer(self, t: float, out, effort: np.ndarray, free: bool, events: list[Event]) -> None:
+    def _offer(self, t: float, out, effort: np.ndarray, free: bool, events: list[Event],
+               calibrating: bool = False) -> None:
         if self.backend is None or out.window is None:
             return
-        if self.policy == "drift-triggered" and t > self._adapt_until:
+        if self.policy == "drift-triggered" and t > self._adapt_until and not calibrating:
             return
-        if self.policy == "ungated":
+        if self.policy == "ungated" or calibrating:
             self.counters.offered += 1
             self.backend.offer(out.window[None], out.step1_torque[None], effort[None])
+            if self.on_offer is not None:
+                self.on_offer(np.array([t]))
             return
         if not free:
             if self._pending:
@@ -312,6 +351,8 @@ class ArmPipeline:
             self.counters.offered += len(ready)
             self.backend.offer(np.stack([r[1] for r in ready]), np.stack([r[2] for r in ready]),
                                np.stack([r[3] for r in ready]))
+            if self.on_offer is not None:
+                self.on_offer(np.array([r[0] for r in ready]))
 
     def _adapt(self, t: float) -> list[Event]:
         if self.backend is None:
@@ -356,7 +397,7 @@ class ArmPipeline:
         mean, std = self.gate.bounds()
         c = self.counters
         return {
-            "arm": self.arm, "policy": self.policy,
+            "arm": self.arm, "policy": self.policy, "calibrating": self.calibrating,
             "model": {"version": self.model_version, "validation": self.model_validation,
                       "mode": self.estimator.mode},
             "counters": {"received": c.received, "estimated": c.estimated, "errors": c.errors,

@@ -31,7 +31,8 @@ _BATCH_S = 0.2          # pipelines send their samples at least this often [s]
 
 
 def _run(inbox: mp.Queue, outbox: mp.Queue, configs: dict[str, dict[str, Any]],
-         models_dir: str | None, max_cpu_fraction: float) -> None:
+         normalisations: dict[str, dict[str, np.ndarray]], models_dir: str | None,
+         max_cpu_fraction: float) -> None:
     """Worker process main loop."""
     import torch
 
@@ -43,7 +44,8 @@ def _run(inbox: mp.Queue, outbox: mp.Queue, configs: dict[str, dict[str, Any]],
         os.nice(10)
     except OSError:
         pass
-    adapters = {arm: Adapter(AdaptationConfig(**cfg)) for arm, cfg in configs.items()}
+    adapters = {arm: Adapter(AdaptationConfig(**cfg), normalisation=normalisations.get(arm))
+                for arm, cfg in configs.items()}
     t0 = time.monotonic()
     busy_until = 0.0
     while True:
@@ -69,7 +71,8 @@ def _run(inbox: mp.Queue, outbox: mp.Queue, configs: dict[str, dict[str, Any]],
             elif kind == "drift":
                 adapters[arm].on_drift(now)
             elif kind == "reset":
-                adapters[arm] = Adapter(adapters[arm].config)
+                adapters[arm] = Adapter(adapters[arm].config,
+                                        normalisation=adapters[arm].normalisation)
             elif kind == "fail":                   # fault injection (tests): next round throws
                 adapters[arm].fail_next = True
         if time.monotonic() < busy_until:
@@ -106,14 +109,15 @@ class WorkerProcess:
     """The process and its queues; one per daemon."""
 
     def __init__(self, configs: dict[str, AdaptationConfig], models_dir: str | None,
-                 max_cpu_fraction: float = 0.5) -> None:
+                 max_cpu_fraction: float = 0.5,
+                 normalisations: dict[str, dict[str, np.ndarray]] | None = None) -> None:
         ctx = mp.get_context("spawn")
         self.inbox: mp.Queue = ctx.Queue()
         self.outbox: mp.Queue = ctx.Queue()
         self.process = ctx.Process(
             target=_run, name="wrenchd-adaptation", daemon=True,
             args=(self.inbox, self.outbox, {a: c.model_dump() for a, c in configs.items()},
-                  models_dir, max_cpu_fraction))
+                  normalisations or {}, models_dir, max_cpu_fraction))
         self.process.start()
         self._results: dict[str, list[tuple[str, Any]]] = {arm: [] for arm in configs}
 

@@ -63,6 +63,9 @@ class Scenario:
     freq_hz: tuple[float, float] = (0.03, 0.3)
     contact_every_s: float | None = None                   # mean gap between contacts
     force_sensor: bool = False
+    #: no contact before this time [s]: the contact-free calibration of step 2 that the
+    #: two-step paper (and wrenchd's daemon) assume at the start of a procedure
+    contact_free_s: float = 0.0
 
 
 def _free(duration: float) -> list[dict[str, Any]]:
@@ -109,17 +112,19 @@ SCENARIOS: dict[str, Scenario] = {s.name: s for s in (
              force_sensor=True),
     Scenario("insufflation-change", "trocar; pressure steps 12 -> 16 mmHg at 40 %",
              TROCAR_WORKSPACE, _insufflation, freq_hz=(0.02, 0.2), contact_every_s=20.0,
-             force_sensor=True),
+             force_sensor=True, contact_free_s=60.0),
     Scenario("instrument-drift", "trocar; seal +60 % and wrist +80 % friction (wear)",
              TROCAR_WORKSPACE, _wear, freq_hz=(0.02, 0.2), contact_every_s=20.0,
-             force_sensor=True),
+             force_sensor=True, contact_free_s=60.0),
 )}
 
 
 def contact_episodes(rng: np.random.Generator, duration_s: float, every_s: float,
-                     length_s: tuple[float, float] = (1.5, 4.0)) -> list[list[float]]:
-    """Random contact intervals: gaps ~ exponential(mean ``every_s``), lengths uniform [s]."""
-    episodes, t = [], rng.exponential(every_s) + 1.0
+                     length_s: tuple[float, float] = (1.5, 4.0),
+                     start_s: float = 0.0) -> list[list[float]]:
+    """Random contact intervals after ``start_s``: gaps ~ exponential(mean ``every_s``),
+    lengths uniform [s]."""
+    episodes, t = [], start_s + rng.exponential(every_s) + 1.0
     while True:
         length = rng.uniform(*length_s)
         if t + length + 0.5 > duration_s:
@@ -149,8 +154,12 @@ def scenario_model(scenario: Scenario, duration_s: float, episodes: list[list[fl
 
 
 def run_scenario(name: str, duration_s: float, seed: int, model: PhysicsModel | None = None,
-                 config: SimulatorConfig | None = None) -> Session:
-    """Simulate scenario ``name`` for ``duration_s`` seconds with ``seed``."""
+                 config: SimulatorConfig | None = None,
+                 contact_free_s: float | None = None) -> Session:
+    """Simulate scenario ``name`` for ``duration_s`` seconds with ``seed``.
+
+    ``contact_free_s`` overrides the scenario's contact-free start [s].
+    """
     try:
         scenario = SCENARIOS[name]
     except KeyError:
@@ -161,8 +170,10 @@ def run_scenario(name: str, duration_s: float, seed: int, model: PhysicsModel | 
     traj_seed, contact_seed, sensor_seed = root.spawn(3)
     trajectory = FourierTrajectory(scenario.workspace, np.random.default_rng(traj_seed),
                                    duration_s, freq_hz=scenario.freq_hz)
+    free_s = scenario.contact_free_s if contact_free_s is None else contact_free_s
     episodes = (contact_episodes(np.random.default_rng(contact_seed), duration_s,
-                                 scenario.contact_every_s) if scenario.contact_every_s else [])
+                                 scenario.contact_every_s, start_s=free_s)
+                if scenario.contact_every_s else [])
     physics = scenario_model(scenario, duration_s, episodes, model)
     metadata = {
         "scenario": {
@@ -171,6 +182,7 @@ def run_scenario(name: str, duration_s: float, seed: int, model: PhysicsModel | 
             "workspace": {"lower": list(scenario.workspace.lower),
                           "upper": list(scenario.workspace.upper)},
             "freq_hz": list(scenario.freq_hz), "contact_episodes": episodes,
+            "contact_free_s": free_s,
             "force_sensor": scenario.force_sensor, "custom_model": model is not None,
         },
     }
