@@ -2,8 +2,8 @@
 
 Each candidate is an effect of the library written as columns ``X`` (N, 6, k): the joint
 torque per unit of each of its parameters, so the residual ``r ~ X beta`` is linear and
-``beta`` maps back to the effect's parameters (:meth:`Candidate.spec`). Columns are built on
-the *measured* motion (encoder positions, measured velocity, smoothed acceleration).
+``beta`` maps back to the effect's parameters (``Candidate.to_params``). Columns are built on
+the *measured* motion (encoder positions, zero-phase velocity, smoothed acceleration).
 
 =====================  ======================================================  ============
 effect                 columns                                                 parameters
@@ -12,12 +12,13 @@ coulomb_friction       ``tanh(dq_j / 1e-3)`` on joint j, j = 1..6              f
 viscous_friction       ``dq_j`` on joint j                                     fv (6)
 stribeck_friction      ``exp(-(dq_j/vs_j)^2) sign(dq_j)``, vs_j profiled       fs (6), vs
 joint_offset           1 on joint j                                            offset (6)
-spring                 ``q_j`` and 1 on joint j (rest = -const / stiffness)    stiffness, rest
-seal_friction          insertion and roll: presliding (bristle) state, ``dq``,  fc, sigma2,
-                       Stribeck excess at the seal's vs                        fs_excess (2 each)
+spring                 ``q_j`` and 1 on roll and wrist (rest = -c / k)         stiffness, rest
+seal_friction          insertion and roll: LuGre bristle force per unit level   fc + fs_excess,
+                       (presliding travel and static ratio profiled), and       sigma2 (insertion);
+                       ``dq`` on insertion                                      sigma0 from travel
 body_wall              port stiffness and damping torques, default incision    k, damping
-payload_mass           point mass per kg at a fixed position (link 2 parallel-  mass_kg
-                       ogram load; link 6 tip), exact through the regressor
+payload_mass           link 2 (parallelogram): first moments ``m c`` (3        mass_kg,
+                       columns); link 6 (tip): point mass per kg at its origin  position_m
 cable_coupling         ``C^T e_i tanh(m_i / 1e-3)``, ``C^T e_i m_i``, m = C dq   motor_fc, motor_fv
 drift                  ``(t - t0) / 3600 * d tau_E / d log p`` for each effect  rate_per_hour
                        E of the model and its level parameter p
@@ -125,23 +126,6 @@ def _diag(values: np.ndarray, joints) -> np.ndarray:
     for i, j in enumerate(joints):
         out[:, j, i] = values[:, j]
     return out
-
-
-def presliding_state(x: np.ndarray, z0: float) -> np.ndarray:
-    """Normalised bristle deflection in [-1, 1] (N,) of a LuGre contact with constant level.
-
-    ``dz/dx = 1 - sign(dx) z / z0``, integrated exactly per step: the sign of motion with a
-    memory of ``z0`` of travel, which is what distinguishes seal presliding from a
-    velocity-sign Coulomb term.
-    """
-    dx = np.diff(x, prepend=x[:1])
-    decay = np.exp(-np.abs(dx) / z0).tolist()
-    target = (np.sign(dx) * z0).tolist()
-    z, out = 0.0, []
-    for e, s in zip(decay, target):
-        z = s + (z - s) * e if s != 0.0 else z
-        out.append(z)
-    return np.asarray(out) / z0
 
 
 def _per_joint(key: str) -> Callable[[np.ndarray], dict[str, Any]]:
