@@ -1,0 +1,230 @@
+"""Replay a session through the daemon's pipeline in simulated time, fast and deterministic.
+
+The samples go through :meth:`service.pipeline.ArmPipeline.process`, the very method the
+daemon calls (validation, gate, drift, policy, delay line, adaptation, model swaps), with
+the adaptation inline (:class:`~service.pipeline.InlineAdaptation`): a round runs at the
+sample at which it falls due and its model is used from the next sample on, so the outcome
+depends only on the session, the config and the seed.
+
+Fast path (``batched=True``, the default): step 1 of the estimator (the LSTMs) never adapts,
+so :class:`BatchedEstimator` computes it for every gap-free segment at once
+(:meth:`FreeSpaceModel.predict_sequence`, torch), and the ``Corr`` correction and the damped
+``J^-T`` wrench map in blocks of samples, recomputed from the next sample on whenever the
+pipeline swaps the correction net. It stands in for the pipeline's estimator and returns the
+same :class:`EstimatorOutput` per sample; the rest of ``process`` is untouched. Its step-1
+numbers come from torch's float32 LSTM instead of the NumPy float32 kernel of the streaming
+path: they agree to float32 rounding (about 1e-6 relative), checked by a parity test.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+
+from adapters.messages import JointStateMsg
+from models.errors import ConfigError
+from models.estimator.estimator import EstimatorOutput, TwoStepEstimator
+from models.estimator.features import segment_starts
+from models.estimator.free_space import FreeSpaceModel
+from models.estimator.wrench import damped_wrench
+from models.series import N_JOINTS, Session
+from service.pipeline import ArmPipeline, Event, PipelineConfig
+from service.replay_source import joint_state_messages
+
+
+class BatchedEstimator(TwoStepEstimator):
+    """The pipeline's estimator with step 1 precomputed for a known sequence of samples.
+
+    Args:
+        base: the pipeline's estimator (its step-1 model, correction, config, wrench map).
+        t: (N,) times [s] of the samples that will reach :meth:`step_one`, in order.
+        features: (N, 12) ``[q, dq]`` of those samples.
+        effort: (N, 6) their measured efforts [N m; N].
+        block: samples per ``Corr`` + wrench block.
+        step1: ``"kernel"``: step 1 by the streaming NumPy kernel, sample by sample, bit
+            for bit what :meth:`step_one` computes (adaptation is chaotic in float32
+            rounding: Adam turns 1e-7 differences of its inputs into different nets);
+            ``"torch"``: one torch LSTM call per segment, several times faster, equal to
+            float32 rounding only.
+    """
+
+    def __init__(self, base: TwoStepEstimator, t: np.ndarray, features: np.ndarray,
+                 effort: np.ndarray, block: int = 256, step1: str = "kernel") -> None:
+        super().__init__(base.free_space, base.correction, base.config, base.wrench_map)
+        if self.mode != "corr":
+            raise ConfigError("the batched replay needs a Corr estimator")
+        self.t = np.asarray(t, dtype=np.float64)
+        self.features = np.asarray(features, dtype=np.float64)
+        self.effort = np.asarray(effort, dtype=np.float64)
+        self.block = int(block)
+        n = len(self.t)
+        starts = segment_starts(self.t, self.config.max_gap_s)
+        self.restarted = np.zeros(n, dtype=bool)
+        self.restarted[starts] = True
+        self.segment_start = starts[np.searchsorted(starts, np.arange(n), side="right") - 1] \
+            if n else np.zeros(0, dtype=np.int64)
+        # (N, 6) step-1 torques, float32 like the streaming kernel's output
+        self.step1 = np.zeros((n, N_JOINTS), dtype=np.float32)
+        stops = np.append(starts[1:], n)
+        for a, b in zip(starts.tolist(), stops.tolist()):
+            if step1 == "torch":
+                self.step1[a:b] = self.free_space.predict_sequence(self.features[a:b])
+            else:                 # the streaming kernel, the same calls as step_one makes
+                kernel, state = self._recurrent, self._recurrent.initial_state(1)
+                for k in range(a, b):
+                    y, state = kernel.step(self.features[k][None, :], state)
+                    self.step1[k] = y[0]
+        self.gain = self._wrench_gains()                                   # (N, 6, 6)
+        self.cursor = 0
+        self._b0 = self._b1 = 0
+        self._blk: tuple[np.ndarray, ...] = ()
+
+    def _wrench_gains(self) -> np.ndarray:
+        """Per sample, the linear map external torque -> wrench of the damped ``J^-T``."""
+        q = self.features[:, :N_JOINTS]
+        if len(q) == 0:
+            return np.zeros((0, N_JOINTS, N_JOINTS))
+        jac = self.wrench_map.kinematics.jacobian(q, frame="hybrid")         # (N, 6, 6)
+        cfg = self.wrench_map.config
+        # the map is linear in the torque: its columns are the wrenches of unit torques
+        unit = damped_wrench(jac[:, None], np.eye(N_JOINTS), cfg.threshold, cfg.max_damping)
+        return np.ascontiguousarray(unit.transpose(0, 2, 1))
+
+    def _compute_block(self, i: int) -> None:
+        w = self.correction.window
+        b1 = min(i + self.block, len(self.t))
+        rows = np.arange(i, b1)
+        idx = rows[:, None] - (w - 1) + np.arange(w)[None, :]
+        idx = np.maximum(idx, self.segment_start[rows][:, None])
+        windows = self.features[idx]                                        # (B, W, 12)
+        predicted = self._corr.correct(windows, self.step1[i:b1]).astype(np.float64)
+        external = self.effort[i:b1] - predicted
+        wrench = np.einsum("nij,nj->ni", self.gain[i:b1], external)
+        self._b0, self._b1 = i, b1
+        self._blk = (windows, predicted, external, wrench)
+
+    def step_one(self, t, q, dq, tau_measured) -> EstimatorOutput:
+        i = self.cursor
+        if i >= len(self.t) or self.t[i] != t:
+            raise ConfigError(f"batched replay: sample at t={t} s is not the next precomputed "
+                              f"one; the pipeline accepted samples the pre-pass did not expect")
+        self.cursor = i + 1
+        if not self._b0 <= i < self._b1:
+            self._compute_block(i)
+        k = i - self._b0
+        windows, predicted, external, wrench = self._blk
+        return EstimatorOutput(float(t), predicted[k], external[k], wrench[k],
+                               bool(self.restarted[i]), self.step1[i].astype(np.float64),
+                               windows[k])
+
+    def swap_correction(self, correction) -> None:
+        super().swap_correction(correction)
+        self._b1 = min(self._b1, self.cursor)          # recompute from the next sample on
+
+
+@dataclass
+class ReplayResult:
+    """Per-sample outputs (rows of the samples the pipeline estimated) and what happened.
+
+    Arrays: ``t`` (N,) [s], ``stamp_ns`` (N,), ``wrench`` (N, 6) [N, N m], ``external``
+    and ``predicted`` (N, 6) [N m; N], ``free`` (N,), ``score`` (N,) [std], ``model_version``
+    (N,), ``sample`` (N,) index of each row in the session.
+    """
+
+    t: np.ndarray
+    stamp_ns: np.ndarray
+    sample: np.ndarray
+    wrench: np.ndarray
+    external: np.ndarray
+    predicted: np.ndarray
+    free: np.ndarray
+    score: np.ndarray
+    model_version: np.ndarray
+    events: list[Event]
+    offered_t: np.ndarray
+    status: dict[str, Any]
+    config: dict[str, Any]
+    policy: str
+    wall_s: float
+    samples_in: int
+    meta: dict[str, Any] = field(default_factory=dict)
+
+
+def _accepted(pipeline: ArmPipeline, js) -> np.ndarray:
+    """Indices of the samples the pipeline will estimate: the bounds of its validation
+    (``pipeline.config.validation``) and strictly increasing stamps, vectorised."""
+    v = pipeline.config.validation
+    ok = np.ones(len(js), dtype=bool)
+    for values, lim in ((js.position, v.max_abs_position), (js.velocity, v.max_abs_velocity),
+                        (js.effort, v.max_abs_effort)):
+        ok &= np.all(np.isfinite(values) & (np.abs(values) <= np.asarray(lim)), axis=1)
+    keep = np.flatnonzero(ok)
+    stamps = np.rint(js.t[keep] * 1e9).astype(np.int64)
+    # JointStates are strictly increasing, so only equal rounded stamps can be refused
+    dup = np.r_[False, np.diff(stamps) <= 0]
+    return keep[~dup]
+
+
+def replay(session: Session, free_space: FreeSpaceModel, config: PipelineConfig | None = None,
+           *, policy: str = "", batched: bool = True, arm: str = "PSM1", block: int = 256,
+           step1: str = "kernel",
+           pipeline_hook: Callable[[ArmPipeline], None] | None = None) -> ReplayResult:
+    """Run ``session`` through a fresh :class:`ArmPipeline` in simulated time.
+
+    Args:
+        session: joint states (truth is not used here; see :mod:`service.replay_metrics`).
+        free_space: the step-1 model.
+        config: the pipeline config (a policy's, :mod:`service.policies`).
+        policy: the policy's name, recorded in the result.
+        batched: use :class:`BatchedEstimator` (same numbers, several times faster).
+        pipeline_hook: called with the pipeline before the first sample (tests, tracing).
+    Returns:
+        the :class:`ReplayResult`.
+    """
+    config = config if config is not None else PipelineConfig()
+    msgs = joint_state_messages(session.joint_states)
+    pipeline = ArmPipeline(arm, free_space, config)
+    offered: list[np.ndarray] = []
+    pipeline.on_offer = offered.append
+    start = time.perf_counter()
+    if batched:
+        js = session.joint_states
+        keep = _accepted(pipeline, js)
+        t = np.array([msgs[i].stamp_ns for i in keep], dtype=np.int64) / 1e9
+        feats = np.concatenate([js.position[keep], js.velocity[keep]], axis=1)
+        pipeline.estimator = BatchedEstimator(pipeline.estimator, t, feats, js.effort[keep],
+                                              block, step1)
+    if pipeline_hook is not None:
+        pipeline_hook(pipeline)
+    n = len(msgs)
+    wrench, external, predicted = (np.zeros((n, N_JOINTS)) for _ in range(3))
+    free, score = np.zeros(n, dtype=bool), np.zeros(n)
+    version, stamp, sample = (np.zeros(n, dtype=np.int64) for _ in range(3))
+    events: list[Event] = []
+    k = 0
+    process = pipeline.process
+    for i, msg in enumerate(msgs):
+        est, evs = process(msg)
+        if evs:
+            events.extend(evs)
+        if est is None:
+            continue
+        wrench[k], external[k], predicted[k] = est.wrench, est.external_torque, \
+            est.predicted_torque
+        free[k], score[k], version[k] = est.free, est.score, est.model_version
+        stamp[k], sample[k] = est.stamp_ns, i
+        k += 1
+    wall = time.perf_counter() - start
+    status = pipeline.status()
+    pipeline.close()
+    return ReplayResult(
+        t=stamp[:k] / 1e9, stamp_ns=stamp[:k], sample=sample[:k], wrench=wrench[:k],
+        external=external[:k], predicted=predicted[:k], free=free[:k], score=score[:k],
+        model_version=version[:k], events=events,
+        offered_t=np.concatenate(offered) if offered else np.zeros(0),
+        status=status, config=config.model_dump(mode="json"),
+        policy=policy or config.policy.name, wall_s=wall, samples_in=n,
+        meta={"batched": batched, "step1": step1 if batched else "stream", "source": session.metadata.get("source")})

@@ -1,0 +1,94 @@
+"""Where a replay's joint states come from: an MCAP session, a simulator spec or a CSV.
+
+``SESSION`` strings accepted by ``wrenchd replay`` and ``wrenchd compare``:
+
+=================================  ==========================================================
+``path/to/file.mcap``              a simulated session (with truth) or a daemon log (its
+                                   ``/psm/measured_js``; no truth)
+``sim:SCENARIO:DURATION[:SEED]``   simulate now, e.g. ``sim:insufflation-change:300:3``
+                                   (duration in s, seed default 0); truth included
+``path/to/file.csv``               a real recording, WPI (21 columns, 200 Hz) or the paper's
+                                   19-column layout (:mod:`adapters.csv_psm`); no truth
+=================================  ==========================================================
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from adapters.messages import JointStateMsg
+from models.errors import ConfigError
+from models.series import JointStates, Session
+
+
+def load_session(spec: str) -> Session:
+    """The session named by ``spec`` (see the module docstring).
+
+    Raises:
+        ConfigError: a malformed ``sim:`` spec or an unknown file type.
+        AdapterError, DataError: the file cannot be read.
+    """
+    if spec.startswith("sim:"):
+        parts = spec.split(":")
+        if len(parts) not in (3, 4):
+            raise ConfigError(f"simulator spec {spec!r}: expected sim:SCENARIO:DURATION[:SEED]")
+        try:
+            duration = float(parts[2])
+            seed = int(parts[3]) if len(parts) == 4 else 0
+        except ValueError:
+            raise ConfigError(f"simulator spec {spec!r}: duration must be a number [s] and "
+                              f"seed an integer") from None
+        from adapters.sim.scenarios import run_scenario
+
+        session = run_scenario(parts[1], duration, seed)
+        return Session(session.joint_states, session.truth,
+                       {**session.metadata, "source": spec})
+    suffix = Path(spec).suffix.lower()
+    if suffix == ".mcap":
+        from adapters.mcap_session import read_session
+
+        session = read_session(spec)
+        return Session(session.joint_states, session.truth, {**session.metadata, "source": spec})
+    if suffix == ".csv":
+        from adapters.csv_psm import read_psm_csv
+
+        return Session(read_psm_csv(spec), None, {"source": spec, "csv": True})
+    raise ConfigError(f"session {spec!r}: expected a .mcap or .csv file or "
+                      f"sim:SCENARIO:DURATION[:SEED]")
+
+
+def stamps_ns(js: JointStates) -> np.ndarray:
+    """Integer sample stamps [ns] as the session files store them."""
+    return np.rint(js.t * 1e9).astype(np.int64)
+
+
+def joint_state_messages(js: JointStates) -> list[JointStateMsg]:
+    """The samples as the decoded messages the daemon's pipeline receives."""
+    stamps = stamps_ns(js).tolist()
+    names = tuple(js.names)
+    return [JointStateMsg(s, "", names, p, v, e)
+            for s, p, v, e in zip(stamps, js.position, js.velocity, js.effort)]
+
+
+def drift_onsets(session: Session) -> list[tuple[str, float, float | None]]:
+    """Set-up changes the session's metadata announces: (id, start [s], end [s] or None).
+
+    Reads the ``drift`` effects of the simulator's physics model (step: end None; ramp: end).
+    Sessions without them (real data, daemon logs) give an empty list.
+    """
+    physics = session.metadata.get("physics_model") or {}
+    effects = physics.get("effects", []) if isinstance(physics, dict) else []
+    out = []
+    for spec in effects:
+        if spec.get("name") != "drift" or spec.get("enabled") is False:
+            continue
+        params = spec.get("params", {})
+        start = params.get("t_start_s")
+        if start is None:
+            continue
+        end = params.get("t_end_s") if params.get("kind") == "ramp" else None
+        out.append((str(spec.get("id") or params.get("target")), float(start),
+                    None if end is None else float(end)))
+    return sorted(out, key=lambda d: d[1])
