@@ -10,7 +10,11 @@ from pathlib import Path
 import pytest
 import zenoh
 
-ROUTER = Path(__file__).resolve().parents[2] / "deploy" / "zenoh" / "router.json5"
+from adapters.zenoh_io import ZenohConfig, open_session
+from service.config import load_settings
+
+DEPLOY = Path(__file__).resolve().parents[2] / "deploy"
+ROUTER = DEPLOY / "zenoh" / "router.json5"
 EC_KEY = ("-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:prime256v1", "-nodes")
 CNS = ["or-router-1", "wrenchd-psm1", "dvrk-psm1", "haptics", "intruder"]
 
@@ -63,6 +67,17 @@ def client(pki, cn, port):
     return zenoh.open(conf)
 
 
+def daemon_session(pki, port):
+    """The daemon's own zenoh settings from deploy/config/psm1.toml, paths moved to the test
+    CA: the TLS endpoint the example config ships is the one the router admits."""
+    zc = load_settings(DEPLOY / "config" / "psm1.toml").zenoh
+    connect = [e.replace("/etc/wrenchd/tls/", f"{pki}/").replace("localhost:7447",
+                                                                  f"127.0.0.1:{port}")
+               for e in zc.connect]
+    return open_session(ZenohConfig(mode=zc.mode, connect=connect,
+                                    multicast_scouting=zc.multicast_scouting))
+
+
 def test_only_the_daemon_and_the_robot_publish_their_keys(pki):
     port = free_port()
     conf = zenoh.Config.from_file(str(ROUTER))
@@ -75,7 +90,8 @@ def test_only_the_daemon_and_the_robot_publish_their_keys(pki):
     router = zenoh.open(conf)
     sessions = {}
     try:
-        for cn in ("wrenchd-psm1", "dvrk-psm1", "haptics", "intruder"):
+        sessions["wrenchd-psm1"] = daemon_session(pki, port)
+        for cn in ("dvrk-psm1", "haptics", "intruder"):
             sessions[cn] = client(pki, cn, port)
         got: list[tuple[str, str, str]] = []       # (receiver, key, payload)
 
