@@ -88,6 +88,13 @@ class SampleRing:
         return items
 
 
+def _plain(value: Any) -> Any:
+    """JSON fallback for NumPy scalars and anything else (as text)."""
+    if isinstance(value, np.generic):
+        return value.item()
+    return str(value)
+
+
 def _percentiles(values) -> dict[str, float | None]:
     if not values:
         return {"p50": None, "p99": None, "max": None}
@@ -151,7 +158,7 @@ class ArmRuntime:
 
     def _on_query(self, query) -> None:
         try:
-            query.reply(self.keys["status"], _ENCODE(self.status()))
+            query.reply(self.keys["status"], json.dumps(self.status(), default=_plain))
         except Exception as exc:  # noqa: BLE001 - a query must never kill the daemon
             print(f"wrenchd: status query failed: {exc}", file=sys.stderr)
 
@@ -233,8 +240,7 @@ class ArmRuntime:
                 next_status = now + self.settings.status_interval_s
                 status = self.status()
                 stamp = self.last.stamp_ns if self.last is not None else 0
-                self.log.write_json(TOPIC_STATUS, stamp, json.loads(json.dumps(status,
-                                                                                default=str)))
+                self.log.write(TOPIC_STATUS, stamp, json.dumps(status, default=_plain).encode())
                 self._console(status)
             self.log.tick()
             if self.log.problem and not self._log_problem_reported:

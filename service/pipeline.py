@@ -314,7 +314,7 @@ class ArmPipeline:
 
     @property
     def calibrating(self) -> bool:
-        return self._calibration_end is None or np.isfinite(self._calibration_end)
+        return self._calibration_end is None or bool(np.isfinite(self._calibration_end))
 
     def _contact_events(self, t: float, free: bool, started: int, events: list[Event]) -> None:
         was = getattr(self, "_was_contact", False)

@@ -1,4 +1,4 @@
-"""`wrenchd serve` on its embedded default: a real subprocess publishing over real zenoh."""
+"""`wrenchd robot`: the simulated PSM as a real subprocess publishing over real zenoh."""
 
 import json
 import signal
@@ -19,10 +19,10 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def test_serve_streams_joint_states_and_records_them(tmp_path):
+def test_robot_streams_joint_states_and_records_them(tmp_path):
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "service.cli", "serve", "--scenario", "trocar", "--arm", "PSM2",
+        [sys.executable, "-m", "service.cli", "robot", "--scenario", "trocar", "--arm", "PSM2",
          "--listen", endpoint, "--out-dir", str(tmp_path)],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     received = []
