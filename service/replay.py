@@ -24,7 +24,6 @@ from typing import Any, Callable
 
 import numpy as np
 
-from adapters.messages import JointStateMsg
 from models.errors import ConfigError
 from models.estimator.estimator import EstimatorOutput, TwoStepEstimator
 from models.estimator.features import segment_starts
