@@ -99,12 +99,13 @@ class McapLog:
         config: where and how.
         metadata: JSON-able description stored in every file.
         clock: wall clock [s] used for flushing and rotation (injectable for tests).
+        opener: ``open``-like function creating the files (tests hand it ``/dev/full``).
     """
 
     def __init__(self, arm: str, config: LogConfig, metadata: dict[str, Any] | None = None,
-                 clock=time.monotonic) -> None:
+                 clock=time.monotonic, opener=open) -> None:
         self.arm, self.config, self.metadata = arm, config, dict(metadata or {})
-        self.clock = clock
+        self.clock, self.opener = clock, opener
         self._file: IO[bytes] | None = None
         self._writer: Writer | None = None
         self._channels: dict[str, int] = {}
@@ -129,7 +130,7 @@ class McapLog:
             self._seq += 1
             stamp = time.strftime("%Y%m%d-%H%M%S")
             path = directory / f"{self.arm}-{stamp}-{os.getpid()}-{self._seq:03d}.mcap"
-            self._file = open(path, "wb")
+            self._file = self.opener(path, "wb")
             self._writer = Writer(self._file, chunk_size=self.config.chunk_size,
                                   compression=CompressionType.ZSTD)
             self._writer.start(profile="", library=_LIBRARY)

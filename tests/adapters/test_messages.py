@@ -1,0 +1,72 @@
+"""JSON and ROS 2 CDR encodings of JointState and WrenchStamped."""
+
+import json
+
+import numpy as np
+import pytest
+
+from adapters.messages import (decode_joint_state, decode_wrench, encode_joint_state,
+                               encode_wrench)
+from models.errors import ConfigError, DataError
+
+NAMES = ["outer_yaw", "outer_pitch", "outer_insertion", "outer_roll", "outer_wrist_pitch",
+         "outer_wrist_yaw"]
+
+
+@pytest.mark.parametrize("encoding", ["json", "cdr"])
+def test_joint_state_round_trip(encoding):
+    rng = np.random.default_rng(1)
+    q, dq, tau = rng.normal(size=(3, 6))
+    stamp = 1_700_000_123_456_789_012
+    payload = encode_joint_state(encoding, stamp, NAMES, q, dq, tau, frame_id="psm1")
+    msg = decode_joint_state(encoding, payload)
+    assert msg.stamp_ns == stamp and msg.frame_id == "psm1" and msg.name == tuple(NAMES)
+    np.testing.assert_array_equal(msg.position, q)
+    np.testing.assert_array_equal(msg.velocity, dq)
+    np.testing.assert_array_equal(msg.effort, tau)
+
+
+def test_json_mirrors_the_ros_fields():
+    m = json.loads(encode_joint_state("json", 3_000_000_007, NAMES, [0] * 6, [1] * 6, [2] * 6))
+    assert m["header"] == {"stamp": {"sec": 3, "nanosec": 7}, "frame_id": ""}
+    assert set(m) == {"header", "name", "position", "velocity", "effort"}
+    w = json.loads(encode_wrench("json", 5, np.arange(6.0), extra={"free": True}))
+    assert w["wrench"] == {"force": {"x": 0, "y": 1, "z": 2}, "torque": {"x": 3, "y": 4, "z": 5}}
+    assert w["wrenchd"] == {"free": True}
+
+
+def test_cdr_is_the_ros2_serialisation():
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    payload = encode_wrench("cdr", 2_500_000_000, np.arange(6.0), frame_id="psm_base")
+    assert payload[:4] == b"\x00\x01\x00\x00"           # CDR little-endian encapsulation
+    msg = store.deserialize_cdr(payload, "geometry_msgs/msg/WrenchStamped")
+    assert (msg.header.stamp.sec, msg.header.stamp.nanosec) == (2, 500_000_000)
+    assert msg.header.frame_id == "psm_base"
+    assert (msg.wrench.force.z, msg.wrench.torque.x) == (2.0, 3.0)
+    stamp, frame, w, extra = decode_wrench("cdr", payload)
+    assert stamp == 2_500_000_000 and frame == "psm_base" and extra == {}
+    np.testing.assert_array_equal(w, np.arange(6.0))
+
+
+@pytest.mark.parametrize("payload, why", [
+    (b"not json", "not JSON"),
+    (b"[1,2]", "JSON object"),
+    (b'{"header":{"stamp":{"sec":1,"nanosec":0}},"position":[1],"velocity":[1,2],"effort":[1]}',
+     "equal"),
+    (b'{"header":{"stamp":{"sec":1.5,"nanosec":0}},"position":[],"velocity":[],"effort":[]}',
+     "integers"),
+    (b'{"header":{"stamp":{"sec":1,"nanosec":0}},"position":"abc","velocity":[],"effort":[]}',
+     "list of numbers"),
+])
+def test_bad_json_joint_states_are_refused_with_the_reason(payload, why):
+    with pytest.raises(DataError, match=why):
+        decode_joint_state("json", payload)
+
+
+def test_bad_cdr_and_unknown_encoding_are_refused():
+    with pytest.raises(DataError, match="CDR"):
+        decode_joint_state("cdr", b"\x00\x01\x00\x00\xff")
+    with pytest.raises(ConfigError):
+        decode_joint_state("xml", b"")
