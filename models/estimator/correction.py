@@ -67,14 +67,18 @@ class Corr(nn.Module):
                            (self.tau_std, np.maximum(y.std(0), MIN_STD))):
             buf.copy_(torch.from_numpy(value))
 
-    def correction_normalised(self, windows: torch.Tensor, step1: torch.Tensor) -> torch.Tensor:
-        """(B, W, 12) raw windows, (B, 6) step-1 torques -> (B, 6) correction in tau_std units."""
+    def normalised_input(self, windows: torch.Tensor, step1: torch.Tensor) -> torch.Tensor:
+        """(B, W, 12) raw windows, (B, 6) step-1 torques -> (B, W * 12 + 6) network input."""
         if windows.ndim != 3 or windows.shape[1:] != (self.window, N_FEATURES):
             raise DataError(f"windows must have shape (B, {self.window}, {N_FEATURES}), "
                             f"got {tuple(windows.shape)}")
         xw = ((windows - self.in_mean) / self.in_std).flatten(1)
         xt = (step1 - self.tau_mean) / self.tau_std
-        return self.net(torch.cat([xw, xt], dim=-1))
+        return torch.cat([xw, xt], dim=-1)
+
+    def correction_normalised(self, windows: torch.Tensor, step1: torch.Tensor) -> torch.Tensor:
+        """(B, W, 12) raw windows, (B, 6) step-1 torques -> (B, 6) correction in tau_std units."""
+        return self.net(self.normalised_input(windows, step1))
 
     def forward(self, windows: torch.Tensor, step1: torch.Tensor) -> torch.Tensor:
         """Corrected torques (B, 6) [N m; N]."""
