@@ -174,7 +174,10 @@ def _checks(spec: dict[str, Any], fitted: dict[str, Any], tau_rms: np.ndarray,
     elif name == "spring":
         per_joint("stiffness", range(3, 6))
     elif name == "seal_friction":
-        check("fc[insertion]", full["fc"][0], fitted["fc"][0])
+        # the sliding level at rest, fc + fs_excess, is what the data fix; the split between
+        # them rests on the shape of the breakaway hump and is reported, not checked
+        check("fc+fs_excess[insertion]", full["fc"][0] + full["fs_excess"][0],
+              fitted["fc"][0] + fitted["fs_excess"][0])
     elif name == "body_wall":
         k = full["k0_n_per_m"] + full["k_per_mmhg"] * full["pressure_mmhg"]
         check("k [N/m]", k, fitted["k0_n_per_m"] + fitted["k_per_mmhg"] * fitted.get("pressure_mmhg", 0.0))

@@ -97,6 +97,9 @@ class Candidate:
     fixed: dict[str, Any] = field(default_factory=dict)
     #: (coefficient index, the model's current value): physically the sum must be >= 0
     nonneg: list[tuple[int, float]] = field(default_factory=list)
+    #: for candidates whose shape is profiled on the residual (Stribeck velocity, seal
+    #: travel and static ratio): rebuild on another residual (N, 6)
+    rebuild: Callable[[np.ndarray], "Candidate"] | None = None
 
     def inadmissible(self, beta: np.ndarray, bse: np.ndarray, size: np.ndarray,
                      sigmas: float = 3.0, material: float = 0.2) -> str | None:
@@ -193,8 +196,8 @@ def _seal(motion: Motion, residual: np.ndarray) -> Candidate:
     broad Stribeck curve, vs 1.2 rad/s, and stays out).
 
     The presliding travel ``z0`` (multiples of the library default, :data:`PRESLIDING_GRID`)
-    and the static excess ratio (:data:`SEAL_RATIO_GRID`) are profiled per joint on the
-    residual (best two-column fit); the coefficients are ``G = fc + fs_excess`` and ``sigma2``.
+    and then the static excess ratio (:data:`SEAL_RATIO_GRID`) are profiled per joint on the
+    residual (best fit; coarse to fine: travel at the middle ratio, then the ratio); the coefficients are ``G = fc + fs_excess`` and ``sigma2``.
     """
     d = SealParams()
     cols = np.zeros((len(motion), 6, 3))
@@ -204,14 +207,22 @@ def _seal(motion: Motion, residual: np.ndarray) -> Candidate:
         v = motion.dq[:, j]
         default_z0 = (d.fc[i] + d.fs_excess[i]) / d.sigma0[i]          # [m; rad]
         best = (np.inf, None, None)
+
+        def score(f, ratio):
+            u = bristle_state(motion.q[:, j], v, f * default_z0, ratio, d.vs[i])
+            x = np.column_stack([u, v]) if i == 0 else u[:, None]
+            _, ssr, *_ = np.linalg.lstsq(x, residual[:, j], rcond=None)
+            return (float(ssr[0]) if ssr.size else np.inf), u
+        # coarse to fine: travel at the default ratio, then the ratio at that travel
         for f in PRESLIDING_GRID:
-            for ratio in SEAL_RATIO_GRID:
-                u = bristle_state(motion.q[:, j], v, f * default_z0, ratio, d.vs[i])
-                x = np.column_stack([u, v]) if i == 0 else u[:, None]
-                _, ssr, *_ = np.linalg.lstsq(x, residual[:, j], rcond=None)
-                ssr = float(ssr[0]) if ssr.size else np.inf
-                if ssr < best[0]:
-                    best = (ssr, (f * default_z0, ratio), u)
+            ssr, u = score(f, SEAL_RATIO_GRID[len(SEAL_RATIO_GRID) // 2])
+            if ssr < best[0]:
+                best = (ssr, (f * default_z0, SEAL_RATIO_GRID[len(SEAL_RATIO_GRID) // 2]), u)
+        f_best = best[1][0] / default_z0
+        for ratio in SEAL_RATIO_GRID:
+            ssr, u = score(f_best, ratio)
+            if ssr < best[0]:
+                best = (ssr, (f_best * default_z0, ratio), u)
         shape.append(best[1])
         if i == 0:
             cols[:, j, 0], cols[:, j, 1] = best[2], v
@@ -341,7 +352,20 @@ def build_candidates(motion: Motion, model: PhysicsModel, residual: np.ndarray,
     for cand in cands:
         if not cand.nonneg:
             cand.nonneg = _sign_constraints(cand, model)
+    for cand in cands:
+        if cand.name in ("stribeck_friction", "seal_friction"):
+            cand.rebuild = _rebuilder(cand.name, motion, model, weights)
     return cands
+
+
+def _rebuilder(name: str, motion: Motion, model: PhysicsModel, weights: np.ndarray):
+    def rebuild(residual: np.ndarray) -> Candidate:
+        cand = _stribeck(motion, residual, weights) if name == "stribeck_friction" \
+            else _seal(motion, residual)
+        cand.nonneg = _sign_constraints(cand, model)
+        cand.rebuild = rebuild
+        return cand
+    return rebuild
 
 
 def _current(model: PhysicsModel, name: str, key: str, size: int) -> np.ndarray:

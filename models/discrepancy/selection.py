@@ -15,8 +15,10 @@ stacked to one vector; a candidate's columns are whitened the same way. Then, gr
    ``stability`` is the fraction of replicates whose fitted effect torque correlates above
    0.9 with the full-data one. An effect fitted to noise changes shape from replicate to
    replicate; a real one does not.
-   Candidates with no held-out support (``delta_bic >= 0``) at one step are not re-scored
-   at the next (speed: each score is five fits).
+   Every remaining candidate is re-scored at every step: one without support alone may
+   have it once another effect is named (a viscous term under a large unexplained offset);
+   shapes profiled on the residual (Stribeck velocities, seal travel and static ratio) are
+   re-profiled on what the named effects leave.
 3. **Size.** The effect's fitted torque must reach ``MIN_SIZE`` of the noise floor on at least
    one joint: with tens of thousands of rows a criterion can favour an effect that is real but
    too small to matter.
@@ -171,62 +173,70 @@ def select(st: Stacked, candidates: list[Candidate]) -> tuple[list[Named], list[
     """
     named: list[Named] = []
     table: list[dict] = []
-    remaining = list(candidates)
+    pool = list(candidates)          # not named yet, all re-scored at every step
     for step in range(MAX_EFFECTS):
-        xa = _stack(st, named)
-        base = _heldout_bic(st, xa)
-        scored = []
-        for cand in remaining:
-            keep = _new_columns(st, cand, xa)
-            if keep.size == 0:
-                table.append({"step": step + 1, "candidate": cand.label, "delta_bic": None,
-                              "note": "spanned by effects already named"})
-                continue
-            xc = st.x(cand, keep)
-            per_fold = _heldout_bic(st, xc if xa is None else np.hstack([xa, xc])) - base
-            scored.append((float(per_fold.sum()), int(np.sum(per_fold < 0)), cand, keep, xc))
-        scored.sort(key=lambda s: s[0])
-        accepted = None
-        for dbic, folds, cand, keep, xc in scored:
-            row = {"step": step + 1, "candidate": cand.label, "delta_bic": dbic,
-                   "folds_in_favour": folds}
-            table.append(row)
-            if accepted is not None or dbic > -MIN_DELTA_BIC or folds < MIN_FOLDS:
-                continue
-            x = xc if xa is None else np.hstack([xa, xc])
-            fit = sm.OLS(st.y, x, hasconst=False).fit()
-            beta, bse = fit.params[-xc.shape[1]:], fit.bse[-xc.shape[1]:]
-            full_b, full_s = np.zeros(cand.columns.shape[2]), np.zeros(cand.columns.shape[2])
-            full_b[keep], full_s[keep] = beta, bse
-            unit = np.zeros(cand.columns.shape[2])          # torque RMS per unit, floors
-            unit[keep] = np.sqrt(np.sum(xc**2, axis=0) / st.n)
-            why = cand.inadmissible(full_b, full_s, unit)
-            if why:
-                row["note"] = why
-                continue
-            size = _size(st, xc, beta)
-            row["size"] = size
-            if size < MIN_SIZE:
-                row["note"] = f"too small ({size:.2f} noise floors)"
-                continue
-            stab = _stability(st, xa, xc)
-            row["stability"] = stab
-            if stab < MIN_STABILITY:
-                row["note"] = f"unstable under bootstrap ({stab:.2f})"
-                continue
-            row["note"] = "named"
-            accepted = Named(cand, keep, Evidence(dbic, folds, stab, size, dbic))
+        if named:
+            # shapes profiled on the residual are re-profiled on what the named effects leave
+            xa = _stack(st, named)
+            left = (st.y - xa @ sm.OLS(st.y, xa, hasconst=False).fit().params).reshape(st.n, 6) / st.sw
+            pool = [c.rebuild(left) if c.rebuild is not None else c for c in pool]
+        accepted, _ = _step(st, named, pool, step, table)
         if accepted is None:
             break
         named.append(accepted)
-        # Candidates that predicted held-out data worse than without them are not re-scored:
-        # adding an effect rarely turns a candidate from no support to strong support, and
-        # each score costs five fits.
-        supported = {id(c) for dbic, _, c, _, _ in scored if dbic < 0}
-        remaining = [c for c in remaining if c is not accepted.candidate and id(c) in supported]
+        pool = [c for c in pool if c is not accepted.candidate]
     named = _recheck(st, named)
     _fit(st, named)
     return named, table
+
+
+def _step(st: Stacked, named: list[Named], active: list[Candidate], step: int,
+          table: list[dict]) -> tuple[Named | None, list]:
+    """Score ``active`` candidates given ``named``; the first that passes every test, if any."""
+    xa = _stack(st, named)
+    base = _heldout_bic(st, xa)
+    scored = []
+    for cand in active:
+        keep = _new_columns(st, cand, xa)
+        if keep.size == 0:
+            table.append({"step": step + 1, "candidate": cand.label, "delta_bic": None,
+                          "note": "spanned by effects already named"})
+            continue
+        xc = st.x(cand, keep)
+        per_fold = _heldout_bic(st, xc if xa is None else np.hstack([xa, xc])) - base
+        scored.append((float(per_fold.sum()), int(np.sum(per_fold < 0)), cand, keep, xc))
+    scored.sort(key=lambda s: s[0])
+    accepted = None
+    for dbic, folds, cand, keep, xc in scored:
+        row = {"step": step + 1, "candidate": cand.label, "delta_bic": dbic,
+               "folds_in_favour": folds}
+        table.append(row)
+        if accepted is not None or dbic > -MIN_DELTA_BIC or folds < MIN_FOLDS:
+            continue
+        x = xc if xa is None else np.hstack([xa, xc])
+        fit = sm.OLS(st.y, x, hasconst=False).fit()
+        beta, bse = fit.params[-xc.shape[1]:], fit.bse[-xc.shape[1]:]
+        full_b, full_s = np.zeros(cand.columns.shape[2]), np.zeros(cand.columns.shape[2])
+        full_b[keep], full_s[keep] = beta, bse
+        unit = np.zeros(cand.columns.shape[2])          # torque RMS per unit, floors
+        unit[keep] = np.sqrt(np.sum(xc**2, axis=0) / st.n)
+        why = cand.inadmissible(full_b, full_s, unit)
+        if why:
+            row["note"] = why
+            continue
+        size = _size(st, xc, beta)
+        row["size"] = size
+        if size < MIN_SIZE:
+            row["note"] = f"too small ({size:.2f} noise floors)"
+            continue
+        stab = _stability(st, xa, xc)
+        row["stability"] = stab
+        if stab < MIN_STABILITY:
+            row["note"] = f"unstable under bootstrap ({stab:.2f})"
+            continue
+        row["note"] = "named"
+        accepted = Named(cand, keep, Evidence(dbic, folds, stab, size, dbic))
+    return accepted, scored
 
 
 def _recheck(st: Stacked, named: list[Named]) -> list[Named]:
