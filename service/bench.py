@@ -58,11 +58,22 @@ def bench_inference(duration_s: float = 60.0, seed: int = 3, warmup: int = 500) 
     }
 
 
-def run(kind: str, json_path: str | None, duration_s: float) -> int:
-    if kind != "inference":
-        raise SystemExit(f"wrenchd bench: unknown benchmark {kind!r}")
+def run(kind: str, json_path: str | None, duration_s: float, arms: int = 1,
+        rate_hz: float = 1000.0) -> int:
     os.environ.setdefault("OMP_NUM_THREADS", "1")
-    result = bench_inference(duration_s=duration_s)
+    if kind == "inference":
+        result = bench_inference(duration_s=duration_s)
+    elif kind == "service":
+        from service.bench_service import bench_service
+
+        result = bench_service(n_arms=arms, rate_hz=rate_hz, duration_s=duration_s)
+    elif kind == "replay":
+        from service.replay_cmd import run_replay_bench
+
+        run_replay_bench(json_path, duration_s)        # prints and writes its JSON
+        return 0
+    else:
+        raise SystemExit(f"wrenchd bench: unknown benchmark {kind!r}")
     text = json.dumps(result, indent=2)
     print(text)
     if json_path:

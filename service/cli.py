@@ -124,13 +124,15 @@ def _cmd_echo(args: argparse.Namespace) -> int:
 def _cmd_bench(args: argparse.Namespace) -> int:
     from service.bench import run
 
-    return run(args.kind, args.json, args.duration)
+    if args.duration is None:
+        args.duration = 20.0 if args.kind == "service" else 60.0
+    return run(args.kind, args.json, args.duration, args.arms, args.rate)
 
 
 #: Modules that add their own sub-commands: each has ``register(subparsers)``, which adds a
 #: parser whose ``func(args) -> int`` runs it.
 COMMAND_MODULES: list[str] = ["service.train_cmd", "service.reproduce_cmd", "service.real_data_cmd",
-                              "service.discrepancy_cmd"]
+                              "service.discrepancy_cmd", "service.replay_cmd"]
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -206,10 +208,14 @@ def build_parser() -> argparse.ArgumentParser:
     ech.set_defaults(func=_cmd_echo)
 
     bench = sub.add_parser("bench", help="measure speed (medians and percentiles, one run)")
-    bench.add_argument("kind", choices=["inference"])
+    bench.add_argument("kind", choices=["inference", "service", "replay"],
+                       help="inference: estimator step; service: daemon end to end over "
+                            "loopback zenoh; replay: replay throughput")
     bench.add_argument("--json", help="also write the result to this file")
-    bench.add_argument("--duration", type=float, default=60.0,
-                       help="simulated session length to run through [s]")
+    bench.add_argument("--duration", type=float, default=None,
+                       help="inference/replay: session length [s] (60); service: measured [s] (20)")
+    bench.add_argument("--arms", type=int, default=1, help="service: arms at once (PSM1..)")
+    bench.add_argument("--rate", type=float, default=1000.0, help="service: rate per arm [Hz]")
     bench.set_defaults(func=_cmd_bench)
     for module in COMMAND_MODULES:
         importlib.import_module(module).register(sub)

@@ -1,4 +1,4 @@
-"""``wrenchd replay``, ``wrenchd compare`` and ``wrenchd bench-replay``.
+"""``wrenchd replay`` and ``wrenchd compare``; ``wrenchd bench replay`` runs :func:`run_replay_bench`.
 
 SESSION is an ``.mcap`` (simulated or a daemon log), ``sim:SCENARIO:DURATION[:SEED]`` or a
 real ``.csv`` (see :mod:`service.replay_source`). ``--config`` is a TOML or JSON file with
@@ -128,11 +128,6 @@ def run_replay_bench(json_path: str | None, duration_s: float = 120.0,
     return result
 
 
-def _cmd_bench(args: argparse.Namespace) -> int:
-    run_replay_bench(args.json, args.duration, args.policy)
-    return 0
-
-
 def register(sub) -> None:
     from service.policies import policy_names
 
@@ -160,9 +155,3 @@ def register(sub) -> None:
                       help="sessions (space- or comma-separated)")
     cmp_.add_argument("--out", required=True, help="output directory")
     cmp_.set_defaults(func=_cmd_compare)
-
-    ben = sub.add_parser("bench-replay", help="replay speed of a 200 Hz session (JSON)")
-    ben.add_argument("--json", help="also write the result to this file")
-    ben.add_argument("--duration", type=float, default=120.0, help="session length [s]")
-    ben.add_argument("--policy", default="gated")
-    ben.set_defaults(func=_cmd_bench)

@@ -1,0 +1,150 @@
+"""``wrenchd bench service``: end-to-end latency of the daemon over loopback zenoh.
+
+The daemon runs as a real subprocess (``robot = "external"``, adaptation on: its calibration
+phase trains the correction net eagerly, so the worker process is busy the whole time). This
+process plays the robots: one thread publishes pre-encoded joint states of a simulated trocar
+session for every arm at ``rate_hz``, and a subscriber per arm records when each wrench comes
+back. Latency = arrival of the wrench - publication of its joint state, both on this
+process's monotonic clock; wrenches are matched to joint states by their stamp.
+
+Reported: ``e2e_p50_us``, ``e2e_p99_us`` (all arms pooled), ``dropped`` (joint states
+published without a wrench back, plus the daemon's own ring drops), ``rate_hz`` (wrenches per
+second per arm, median over arms), and per-arm details.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from adapters.messages import encode_joint_state
+from adapters.zenoh_io import ZenohConfig, open_session
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _config(path: Path, endpoint: str, arms: list[str], log_dir: Path) -> None:
+    lines = ['robot = "external"', "[zenoh]", f'listen = ["{endpoint}"]', "[log]",
+             f'directory = "{log_dir}"', "[ring]", "capacity = 4000"]
+    for arm in arms:
+        lines += ["[[arms]]", f'name = "{arm}"', 'encoding = "json"']
+    path.write_text("\n".join(lines) + "\n")
+
+
+def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 20.0,
+                  warmup_s: float = 3.0) -> dict[str, Any]:
+    """Run the benchmark; returns the result dictionary."""
+    from adapters.sim.scenarios import run_scenario
+    from adapters.sim.simulator import SimulatorConfig
+
+    arms = [f"PSM{k + 1}" for k in range(n_arms)]
+    total_s = warmup_s + duration_s
+    sim = run_scenario("trocar", total_s + 1.0, 11,
+                       config=SimulatorConfig(publish_rate_hz=rate_hz,
+                                              internal_rate_hz=max(1000.0, rate_hz)))
+    js = sim.joint_states
+    n = int(total_s * rate_hz)
+    stamps = [int(round(t * 1e9)) for t in js.t[:n]]
+    payloads = [encode_joint_state("json", stamps[i], js.names, js.position[i], js.velocity[i],
+                                   js.effort[i]) for i in range(n)]
+    endpoint = f"tcp/127.0.0.1:{_free_port()}"
+    workdir = Path(tempfile.mkdtemp(prefix="wrenchd-bench-"))
+    _config(workdir / "bench.toml", endpoint, arms, workdir / "logs")
+    daemon = subprocess.Popen([sys.executable, "-m", "service.cli", "serve", "--config",
+                               str(workdir / "bench.toml")], stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE, text=True)
+    sent_ns = {arm: np.zeros(n, dtype=np.int64) for arm in arms}
+    received: dict[str, list[tuple[int, bytes]]] = {arm: [] for arm in arms}
+    session = None
+    status: dict[str, Any] = {}
+    try:
+        for _ in range(len(arms)):
+            line = daemon.stdout.readline()
+            if "listening" not in line:
+                raise RuntimeError(f"daemon did not start: {line}{daemon.stderr.read()}")
+        session = open_session(ZenohConfig(connect=[endpoint]))
+        subs = [session.declare_subscriber(
+            f"dvrk/{arm}/wrenchd/measured_cf",
+            lambda s, arm=arm: received[arm].append((time.perf_counter_ns(),
+                                                     s.payload.to_bytes())))
+            for arm in arms]
+        pubs = {arm: session.declare_publisher(f"dvrk/{arm}/measured_js") for arm in arms}
+        time.sleep(1.0)                                     # let the routes settle
+        period_ns = int(1e9 / rate_hz)
+        start = time.perf_counter_ns()
+        for i in range(n):
+            due = start + i * period_ns
+            while True:
+                now = time.perf_counter_ns()
+                if now >= due:
+                    break
+                if due - now > 300_000:
+                    time.sleep((due - now - 200_000) / 1e9)
+            for arm in arms:
+                sent_ns[arm][i] = time.perf_counter_ns()
+                pubs[arm].put(payloads[i])
+        time.sleep(2.0)                                     # the last wrenches come back
+        for arm in arms:
+            replies = list(session.get(f"dvrk/{arm}/wrenchd/status", timeout=5.0))
+            ok = [r.ok for r in replies if r.ok is not None]
+            status[arm] = json.loads(ok[0].payload.to_bytes()) if ok else {}
+        for sub in subs:
+            sub.undeclare()
+        for pub in pubs.values():
+            pub.undeclare()
+    finally:
+        if session is not None:
+            session.close()
+        daemon.send_signal(signal.SIGINT)
+        try:
+            daemon.communicate(timeout=60)
+        except subprocess.TimeoutExpired:
+            daemon.kill()
+    index = {s: i for i, s in enumerate(stamps)}
+    first = int(warmup_s * rate_hz)
+    latencies, per_arm = [], {}
+    for arm in arms:
+        lat, got = [], np.zeros(n, dtype=bool)
+        for arrived, payload in received[arm]:
+            m = json.loads(payload)
+            stamp = m["header"]["stamp"]["sec"] * 1_000_000_000 + m["header"]["stamp"]["nanosec"]
+            i = index.get(stamp)
+            if i is None:
+                continue
+            got[i] = True
+            if i >= first:
+                lat.append((arrived - sent_ns[arm][i]) / 1e3)
+        missing = int((~got).sum())
+        ring = int(status.get(arm, {}).get("counters", {}).get("dropped", 0))
+        arr = np.array(lat) if lat else np.array([np.nan])
+        per_arm[arm] = {"e2e_p50_us": float(np.percentile(arr, 50)),
+                        "e2e_p99_us": float(np.percentile(arr, 99)),
+                        "e2e_max_us": float(np.max(arr)), "missing": missing,
+                        "ring_dropped": ring, "received": int(got.sum()),
+                        "rate_hz": float(got[first:].sum() / duration_s),
+                        "model_version": status.get(arm, {}).get("model", {}).get("version"),
+                        "adaptation_rounds": status.get(arm, {}).get("counters", {}).get(
+                            "rounds")}
+        latencies.extend(lat)
+    pooled = np.array(latencies) if latencies else np.array([np.nan])
+    return {"e2e_p50_us": float(np.percentile(pooled, 50)),
+            "e2e_p99_us": float(np.percentile(pooled, 99)),
+            "dropped": int(sum(a["missing"] + a["ring_dropped"] for a in per_arm.values())),
+            "rate_hz": float(np.median([a["rate_hz"] for a in per_arm.values()])),
+            "arms": n_arms, "target_rate_hz": rate_hz, "duration_s": duration_s,
+            "warmup_s": warmup_s, "cpu_count": os.cpu_count(), "per_arm": per_arm}
