@@ -30,6 +30,7 @@ from models.errors import ConfigError, DataError
 Encoding = Literal["json", "cdr"]
 ENCODINGS: tuple[str, ...] = ("json", "cdr")
 _NS = 1_000_000_000
+_SEC_LIMIT = 2 ** 31
 JOINT_STATE_TYPE = "sensor_msgs/msg/JointState"
 WRENCH_TYPE = "geometry_msgs/msg/WrenchStamped"
 _ENCODE = json.JSONEncoder(separators=(",", ":"), allow_nan=False).encode
@@ -75,7 +76,10 @@ def _vector(message: dict[str, Any], field: str) -> np.ndarray:
         raise DataError(f"field {field!r} must be a list of numbers, got {type(value).__name__}")
     if not all(type(v) in (int, float) for v in value):
         raise DataError(f"field {field!r} must hold only numbers")
-    return np.asarray(value, dtype=np.float64)
+    try:
+        return np.asarray(value, dtype=np.float64)
+    except OverflowError:
+        raise DataError(f"field {field!r} holds a number beyond float64") from None
 
 
 def _header(message: dict[str, Any]) -> tuple[int, str]:
@@ -88,6 +92,8 @@ def _header(message: dict[str, Any]) -> tuple[int, str]:
     sec, nanosec = stamp.get("sec"), stamp.get("nanosec")
     if type(sec) is not int or type(nanosec) is not int:
         raise DataError("header.stamp.sec and .nanosec must be integers")
+    if not 0 <= sec < _SEC_LIMIT:                     # ROS builtin_interfaces/Time: int32 sec
+        raise DataError(f"header.stamp.sec out of range [0, 2^31): {str(sec)[:24]}")
     if not 0 <= nanosec < _NS:
         raise DataError(f"header.stamp.nanosec out of range: {nanosec}")
     frame = header.get("frame_id", "")
@@ -135,13 +141,26 @@ def _json_wrench(stamp_ns: int, frame_id: str, wrench: np.ndarray,
 def _decode_json_wrench(payload: bytes) -> tuple[int, str, np.ndarray, dict[str, Any]]:
     try:
         message = json.loads(payload)
-        stamp_ns, frame = _header(message)
-        w = message["wrench"]
-        wrench = np.array([w["force"]["x"], w["force"]["y"], w["force"]["z"],
-                           w["torque"]["x"], w["torque"]["y"], w["torque"]["z"]], dtype=float)
-    except (ValueError, KeyError, TypeError) as exc:
-        raise DataError(f"not a WrenchStamped JSON message: {exc}") from None
-    return stamp_ns, frame, wrench, dict(message.get("wrenchd") or {})
+    except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
+        raise DataError(f"not JSON: {exc}") from None
+    if not isinstance(message, dict):
+        raise DataError(f"a wrench must be a JSON object, got {type(message).__name__}")
+    stamp_ns, frame = _header(message)
+    w = message.get("wrench")
+    parts = [w.get(k) if isinstance(w, dict) else None for k in ("force", "torque")]
+    if not all(isinstance(p, dict) for p in parts):
+        raise DataError("wrench.force and wrench.torque must be objects")
+    values = [p.get(a) for p in parts for a in "xyz"]
+    if not all(type(v) in (int, float) for v in values):
+        raise DataError("wrench.force and wrench.torque x, y, z must be numbers")
+    try:
+        wrench = np.array(values, dtype=np.float64)
+    except OverflowError:
+        raise DataError("wrench holds a number beyond float64") from None
+    extra = message.get("wrenchd", {})
+    if not isinstance(extra, dict):
+        raise DataError("field 'wrenchd' must be an object")
+    return stamp_ns, frame, wrench, extra
 
 
 # -- CDR ----------------------------------------------------------------------------------

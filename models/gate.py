@@ -11,8 +11,13 @@ per-joint residual in those units, and switches with hysteresis:
 * contact -> free when the score stays below ``exit_sigma`` for ``exit_s`` (a contact whose
   force passes through zero is not chopped into pieces).
 
-The statistics only learn from free samples, so a contact cannot widen the bounds that detect
-it. They are centred on zero, not on a running mean, and slow (``alpha``: a time constant of
+The statistics only learn from free samples scoring under ``learn_sigma``, and the scale may
+never grow beyond ``max_growth`` times its warm-up value, so a contact, even one that starts
+too gently to be seen, cannot widen the bounds that detect it (measured on the
+``insufflation-change`` scenario: without these two rules, contacts that slipped through
+widened the scale until 2-8 N contacts were called free). ``trainable`` is stricter than
+``free``: a free sample scoring over ``train_sigma`` is published as free but kept out of
+training. They are centred on zero, not on a running mean, and slow (``alpha``: a time constant of
 tens of seconds): a contact's force builds up over a second or more, and a fast running mean
 would follow it up and never see it (measured: with a 2.5 s mean, 4-9 N contacts scored
 2 sigma). A bias of the residual is the correction net's job, not the gate's. A floor ``min_std`` (per joint, N m or N) keeps the bounds from collapsing onto the noise
@@ -57,6 +62,12 @@ class GateConfig(BaseModel):
         description="floor of each joint's residual std [N m; N on insertion]")
     max_contact_s: float = Field(default=15.0, gt=0.0,
                                  description="a longer contact re-calibrates the gate [s]")
+    learn_sigma: float = Field(default=2.5, gt=0.0,
+                               description="only samples scoring below this teach the scale")
+    train_sigma: float = Field(default=2.5, gt=0.0,
+                               description="only free samples scoring below this may train")
+    max_growth: float = Field(default=2.0, ge=1.0,
+                              description="the scale never exceeds this x its warm-up value")
 
 
 @dataclass(frozen=True)
@@ -64,7 +75,7 @@ class GateDecision:
     """One sample's verdict.
 
     Attributes:
-        free: free motion (may train the correction net).
+        free: free motion (published with the estimate).
         score: largest per-joint |residual - mean| / std [std].
         contact_started: sample index where the current contact began (-1 when free).
         recalibrated: the gate re-calibrated at this sample (stuck in contact too long).
@@ -74,6 +85,7 @@ class GateDecision:
     score: float
     contact_started: int
     recalibrated: bool = False
+    trainable: bool = False
 
 
 class FreeMotionGate:
@@ -94,6 +106,7 @@ class FreeMotionGate:
         self._msq = [stats.EWMean(fading_factor=a) for _ in range(N_JOINTS)]
         self._warm = [stats.Mean() for _ in range(N_JOINTS)]     # plain mean while warming up
         self._seen = 0
+        self._cap = np.full(N_JOINTS, np.inf)
         self._in_contact = False
         self._above = 0
         self._below_since: float | None = None
@@ -111,8 +124,10 @@ class FreeMotionGate:
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """Centre (zeros) and scale (floored RMS) of the free residual, (6,) each."""
-        source = self._warm if self._seen < self.config.warmup_samples else self._msq
-        rms = np.sqrt(np.array([m.get() for m in source]))
+        if self._seen < self.config.warmup_samples:
+            rms = np.sqrt(np.array([m.get() for m in self._warm]))
+        else:
+            rms = np.minimum(np.sqrt(np.array([m.get() for m in self._msq])), self._cap)
         return np.zeros(N_JOINTS), np.maximum(rms, self._floor)
 
     def _learn(self, residual: np.ndarray) -> None:
@@ -124,6 +139,8 @@ class FreeMotionGate:
                 if self._seen == self.config.warmup_samples - 1:    # seed the slow average
                     self._msq[j] = stats.EWMean(fading_factor=self.config.alpha)
                     self._msq[j].update(self._warm[j].get())
+                    self._cap[j] = self.config.max_growth * max(
+                        np.sqrt(self._warm[j].get()), self._floor[j])
             else:
                 self._msq[j].update(sq)
         self._seen += 1
@@ -145,8 +162,9 @@ class FreeMotionGate:
                 self._below_since = None
                 self.contacts += 1
             else:
-                self._learn(residual)
-                return GateDecision(True, score, -1)
+                if score < cfg.learn_sigma:
+                    self._learn(residual)
+                return GateDecision(True, score, -1, trainable=score < cfg.train_sigma)
         # in contact
         if score < cfg.exit_sigma:
             if self._below_since is None:

@@ -62,6 +62,11 @@ class ValidationConfig(BaseModel):
         default=(10.0, 10.0, 2.0, 20.0, 20.0, 20.0), description="|dq| bound [rad/s; m/s]")
     max_abs_effort: tuple[float, ...] = Field(
         default=(50.0, 50.0, 200.0, 10.0, 10.0, 10.0), description="|effort| bound [N m; N]")
+    resync_after: int = Field(
+        default=40, ge=1,
+        description="this many consecutive samples stamped before the last accepted one mean "
+                    "the publisher's clock restarted (or one stamp came from the far future): "
+                    "accept the new timeline ('clock_reset' event) instead of refusing forever")
 
 
 class PolicyConfig(BaseModel):
@@ -207,6 +212,7 @@ class ArmPipeline:
         self.model_version = 0
         self.model_validation: float | None = None
         self._last_ns: int | None = None
+        self._behind = 0                      # consecutive samples stamped before the last
         self._pending: deque[tuple[float, np.ndarray, np.ndarray, np.ndarray]] = deque()
         self._index = 0
         self._lim = tuple(np.asarray(v, dtype=float) for v in (
@@ -228,9 +234,10 @@ class ArmPipeline:
         return self._error(t, kind, reason)
 
     def _validate(self, msg: JointStateMsg) -> str | None:
-        n = len(msg.position)
-        if n != N_JOINTS:
-            return f"{n} joints, the PSM pipeline needs {N_JOINTS}"
+        lengths = (len(msg.position), len(msg.velocity), len(msg.effort))
+        if lengths != (N_JOINTS,) * 3:
+            return (f"position, velocity, effort have {lengths[0]}, {lengths[1]}, {lengths[2]} "
+                    f"values; the PSM pipeline needs {N_JOINTS} each")
         for name, v, lim in zip(("position", "velocity", "effort"),
                                 (msg.position, msg.velocity, msg.effort), self._lim):
             if not np.isfinite(v).all():
@@ -252,19 +259,27 @@ class ArmPipeline:
             return None, [self._error(t, "invalid", reason)]
         if self._last_ns is not None and msg.stamp_ns <= self._last_ns:
             kind = "duplicate" if msg.stamp_ns == self._last_ns else "time_backwards"
-            return None, [self._error(t, kind, f"stamp {msg.stamp_ns} ns after "
-                                               f"{self._last_ns} ns")]
-        if (self._last_ns is not None
-                and msg.stamp_ns - self._last_ns > self.config.estimator.max_gap_s * 1e9):
+            self._behind += 1
+            event = self._error(t, kind, f"stamp {msg.stamp_ns} ns after {self._last_ns} ns")
+            if self._behind < self.config.validation.resync_after:
+                return None, [event]
+            events += [event, Event(t, "clock_reset", {          # a new timeline: accept it
+                "arm": self.arm, "last_ns": self._last_ns, "now_ns": msg.stamp_ns})]
+            self._last_ns = None
+            self._pending.clear()
+        gap = (self._last_ns is not None
+               and msg.stamp_ns - self._last_ns > self.config.estimator.max_gap_s * 1e9)
+        try:
+            out = self.estimator.step_one(t, msg.position, msg.velocity, msg.effort)
+        except DataError as exc:                    # cannot happen after validation; be safe
+            return None, events + [self._error(t, "invalid", str(exc))]
+        self._behind = 0
+        if gap:
             self.counters.gaps += 1
             self._pending.clear()                      # the delay line spans no gap
             events.append(Event(t, "gap", {"arm": self.arm,
                                            "gap_s": (msg.stamp_ns - self._last_ns) / 1e9}))
         self._last_ns = msg.stamp_ns
-        try:
-            out = self.estimator.step_one(t, msg.position, msg.velocity, msg.effort)
-        except DataError as exc:                    # cannot happen after validation; be safe
-            return None, events + [self._error(t, "invalid", str(exc))]
         if not np.isfinite(out.wrench).all():
             return None, events + [self._error(t, "non_finite_output", "estimate not finite")]
         index = self._index
@@ -273,7 +288,7 @@ class ArmPipeline:
         decision = self.gate.update(index, t, out.external_torque)
         calibrating = self._calibrating(t, events)
         if calibrating:
-            decision = GateDecision(True, decision.score, -1)
+            decision = GateDecision(True, decision.score, -1, trainable=True)
         if decision.recalibrated:
             events.append(Event(t, "gate_recalibrated", {"arm": self.arm,
                                                          "max_contact_s":
@@ -286,7 +301,7 @@ class ArmPipeline:
                                              "level": self.drift.level(out.external_torque)}))
             if self.backend is not None:
                 self.backend.drift(t)
-        self._offer(t, out, msg.effort, decision.free, events, calibrating)
+        self._offer(t, out, msg.effort, decision.free, events, calibrating, decision.trainable)
         events.extend(self._adapt(t))
         est = Estimate(index, msg.stamp_ns, t, msg.position, msg.velocity, msg.effort,
                        out.wrench, out.predicted_torque, out.external_torque, decision.free,
@@ -326,7 +341,7 @@ class ArmPipeline:
         self._was_contact = now
 
     def _offer(self, t: float, out, effort: np.ndarray, free: bool, events: list[Event],
-               calibrating: bool = False) -> None:
+               calibrating: bool = False, trainable: bool = True) -> None:
         if self.backend is None or out.window is None:
             return
         if self.policy == "drift-triggered" and t > self._adapt_until and not calibrating:
@@ -342,7 +357,8 @@ class ArmPipeline:
                 self.counters.discarded_onsets += len(self._pending)
                 self._pending.clear()
             return
-        self._pending.append((t, out.window, out.step1_torque, effort.copy()))
+        if trainable:                   # a free but borderline sample is skipped, not trusted
+            self._pending.append((t, out.window, out.step1_torque, effort.copy()))
         delay = self.config.policy.release_delay_s
         ready = []
         while self._pending and t - self._pending[0][0] >= delay:
