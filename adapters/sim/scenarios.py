@@ -8,7 +8,7 @@
                        workspace of work inside a phantom, slower motion, no contact.
 ``trocar-contact``     ``trocar`` plus contact episodes: the tip grasps a compliant handle on
                        a 6-axis force sensor (sensor channel recorded).
-``insufflation-change`` ``trocar`` with the pressure stepping from 12 to 16 mmHg at 40 % of
+``insufflation-change`` ``trocar`` with the pressure stepping from 12 to 20 mmHg at 40 % of
                        the session, plus occasional contacts (sensor recorded).
 ``instrument-drift``   ``trocar`` with seal friction ramping up 60 % and wrist friction up
                        80 % over the session (wear), plus occasional contacts.
@@ -84,7 +84,7 @@ def _insufflation(duration: float) -> list[dict[str, Any]]:
     return _trocar(duration) + [{
         "name": "drift", "id": "insufflation_step",
         "params": {"target": "body_wall", "param": "pressure_mmhg", "kind": "step",
-                   "factor": 16.0 / 12.0, "t_start_s": round(0.4 * duration, 3)},
+                   "factor": 20.0 / 12.0, "t_start_s": round(0.4 * duration, 3)},
     }]
 
 
@@ -110,7 +110,7 @@ SCENARIOS: dict[str, Scenario] = {s.name: s for s in (
     Scenario("trocar-contact", "trocar with grasped-handle contacts on a force sensor",
              TROCAR_WORKSPACE, _trocar, freq_hz=(0.02, 0.2), contact_every_s=8.0,
              force_sensor=True),
-    Scenario("insufflation-change", "trocar; pressure steps 12 -> 16 mmHg at 40 %",
+    Scenario("insufflation-change", "trocar; pressure steps 12 -> 20 mmHg at 40 %",
              TROCAR_WORKSPACE, _insufflation, freq_hz=(0.02, 0.2), contact_every_s=20.0,
              force_sensor=True, contact_free_s=60.0),
     Scenario("instrument-drift", "trocar; seal +60 % and wrist +80 % friction (wear)",
