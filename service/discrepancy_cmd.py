@@ -83,7 +83,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     from service.discrepancy_studies import hidden_effect_sweep
 
     return hidden_effect_sweep(Path(args.out), args.seeds, args.duration, args.pairs_seeds,
-                               args.effects)
+                               args.effects, args.none_seeds)
 
 
 def _cmd_real(args: argparse.Namespace) -> int:
@@ -117,6 +117,8 @@ def register(subparsers) -> None:
                                help="hidden-effect study: recall and false positives over seeds")
     sw.add_argument("--out", default="reports/discrepancy", help="folder for hidden-effects.md/json")
     sw.add_argument("--seeds", type=int, default=20, help="seeds per single hidden effect and for none")
+    sw.add_argument("--none-seeds", type=int, default=None,
+                    help="seeds with nothing hidden (default: --seeds)")
     sw.add_argument("--pairs-seeds", type=int, default=5, help="seeds per pair of hidden effects")
     sw.add_argument("--duration", type=float, default=30.0, help="simulated recording [s]")
     sw.add_argument("--effects", nargs="*", help="only these hidden effects (default: all)")
