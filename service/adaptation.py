@@ -15,7 +15,8 @@ process, :mod:`service.worker`) and by replay (inline, in simulated time):
   version number.
 * :meth:`Adapter.on_drift` makes adaptation eager for ``eager_s``: rounds come more often and
   the held-out set restarts with samples after the drift (the old regime is no longer what
-  "recent" means).
+  "recent" means). The reservoir is kept (measured: emptying it, and re-learning the gate's
+  scale, made the insufflation recovery worse and let more contact through).
 
 The first net is a fresh ``Corr`` whose output layer is zero: it changes nothing until a round
 has been accepted. Its input and torque normalisation is the step-1 model's (fitted on the

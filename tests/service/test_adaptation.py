@@ -1,0 +1,69 @@
+"""The lifelong adaptation core: validated swaps, versions, determinism, drift."""
+
+import numpy as np
+import torch
+
+from service.adaptation import AdaptationConfig, Adapter
+
+
+def samples(n: int, seed: int = 0, gain: float = 0.3):
+    """Windows (n, 10, 12), step-1 torques and measured torques = step 1 + a smooth effect."""
+    rng = np.random.default_rng(seed)
+    x = rng.uniform(-1, 1, (n, 12))
+    windows = np.repeat(x[:, None, :], 10, axis=1)
+    step1 = rng.normal(0, 0.5, (n, 6))
+    effect = gain * np.tanh(x[:, :6] * 2.0)                 # what the Corr has to learn
+    return windows, step1, step1 + effect + rng.normal(0, 0.01, (n, 6))
+
+
+def run_rounds(adapter: Adapter, n_rounds: int):
+    return [r for k in range(n_rounds) if (r := adapter.round(10.0 * k)) is not None]
+
+
+def test_accepted_rounds_lower_the_held_out_error_and_number_versions():
+    adapter = Adapter(AdaptationConfig(min_train_samples=200, round_steps=30, interval_s=1.0))
+    adapter.add(*samples(3000))
+    results = run_rounds(adapter, 12)
+    accepted = [r for r in results if r.accepted]
+    assert accepted, [r.summary() for r in results]
+    for r in results:                                     # a swap never raises the error
+        if r.accepted:
+            assert r.val_after < r.val_before * (1 - adapter.config.min_improvement)
+    assert [r.version for r in accepted] == list(range(1, len(accepted) + 1))
+    assert accepted[-1].val_after < 0.5 * results[0].val_before
+
+
+def test_a_diverging_candidate_is_never_swapped_in():
+    adapter = Adapter(AdaptationConfig(min_train_samples=200, lr=50.0, round_steps=20,
+                                       weight_decay=0.0))
+    adapter.add(*samples(2000))
+    results = run_rounds(adapter, 5)
+    assert results and not any(r.accepted for r in results)
+    assert adapter.version == 0
+    x, s, y = adapter._split(np.stack(adapter.holdout))
+    with torch.no_grad():                                 # the serving net still does nothing
+        np.testing.assert_allclose(adapter.corr(x, s).numpy(), s.numpy(), atol=1e-6)
+
+
+def test_same_seed_same_data_same_model():
+    states = []
+    for _ in range(2):
+        adapter = Adapter(AdaptationConfig(min_train_samples=200, seed=7))
+        adapter.add(*samples(1500, seed=3))
+        run_rounds(adapter, 4)
+        states.append({k: v.clone() for k, v in adapter.corr.state_dict().items()})
+    for k in states[0]:
+        assert torch.equal(states[0][k], states[1][k])
+
+
+def test_drift_makes_rounds_eager_and_restarts_the_holdout():
+    cfg = AdaptationConfig(min_train_samples=200, interval_s=10.0, eager_interval_s=1.0)
+    adapter = Adapter(cfg)
+    adapter.add(*samples(1500))
+    assert adapter.round(0.0) is not None and adapter.round(1.0) is None
+    adapter.on_drift(2.0)
+    assert len(adapter.holdout) == 0
+    r = adapter.round(2.0)
+    assert r is not None and r.eager
+    assert adapter.round(3.0) is not None                 # eager: every second
+    assert not adapter.eager(2.0 + cfg.eager_s + 1)

@@ -1,0 +1,97 @@
+"""One arm's pipeline: validation, gaps, swaps that keep the state, contact kept out of training."""
+
+import numpy as np
+import pytest
+
+from adapters.messages import JointStateMsg
+from adapters.sim.scenarios import run_scenario
+from models.estimator.pretrained import load_pretrained
+from service.pipeline import ArmPipeline, PipelineConfig, PolicyConfig
+
+
+@pytest.fixture(scope="module")
+def seal():
+    return load_pretrained("seal")
+
+
+@pytest.fixture(scope="module")
+def trocar():
+    return run_scenario("trocar", 6.0, 4).joint_states
+
+
+def msg(js, i, t=None, **change):
+    fields = {"position": js.position[i].copy(), "velocity": js.velocity[i].copy(),
+              "effort": js.effort[i].copy()}
+    fields.update(change)
+    stamp = int(round((js.t[i] if t is None else t) * 1e9))
+    return JointStateMsg(stamp, "", (), **fields)
+
+
+def test_bad_samples_are_counted_events_and_never_estimated(seal, trocar):
+    p = ArmPipeline("PSM1", seal, PipelineConfig(policy=PolicyConfig(name="frozen")))
+    for i in range(20):
+        est, _ = p.process(msg(trocar, i))
+        assert est is not None
+    nan_velocity = trocar.velocity[20].copy()
+    nan_velocity[2] = np.nan
+    bad = [
+        (msg(trocar, 20, velocity=nan_velocity), "invalid"),
+        (msg(trocar, 20, effort=np.full(6, 1e6)), "invalid"),
+        (JointStateMsg(int(trocar.t[20] * 1e9), "", (), np.zeros(7), np.zeros(7), np.zeros(7)),
+         "invalid"),
+        (msg(trocar, 19), "duplicate"),
+        (msg(trocar, 10), "time_backwards"),
+    ]
+    for m, kind in bad:
+        est, events = p.process(m)
+        assert est is None
+        assert [(e.kind, e.detail["error"]) for e in events] == [("error", kind)]
+    assert p.counters.errors == len(bad)
+    assert p.counters.error_kinds == {"invalid": 3, "duplicate": 1, "time_backwards": 1}
+    est, _ = p.process(msg(trocar, 20))                 # the stream goes on
+    assert est is not None and not est.restarted
+
+
+def test_a_gap_restarts_the_recurrent_state(seal, trocar):
+    p = ArmPipeline("PSM1", seal, PipelineConfig(policy=PolicyConfig(name="frozen")))
+    for i in range(50):
+        p.process(msg(trocar, i))
+    est, events = p.process(msg(trocar, 200))           # 0.75 s later
+    assert est.restarted and [e.kind for e in events] == ["gap"]
+    assert p.counters.gaps == 1
+
+
+def test_a_model_swap_keeps_the_recurrent_state(seal, trocar):
+    from service.pipeline import initial_corr
+
+    p = ArmPipeline("PSM1", seal, PipelineConfig(policy=PolicyConfig(name="frozen")))
+    ref = ArmPipeline("PSM1", seal, PipelineConfig(policy=PolicyConfig(name="frozen")))
+    for i in range(100):
+        a, _ = p.process(msg(trocar, i))
+        b, _ = ref.process(msg(trocar, i))
+        if i == 50:                                      # an identical (zero) Corr swapped in
+            p.estimator.swap_correction(initial_corr(p.config.adaptation))
+        np.testing.assert_allclose(a.wrench, b.wrench, rtol=1e-9, atol=1e-9)
+        assert a.restarted == b.restarted == (i == 0)
+
+
+def test_contact_never_reaches_training_on_a_contact_session(seal):
+    """The gated policy on trocar-contact after its calibration: the training offers hold no
+    sample that the simulator labels as in contact."""
+    session = run_scenario("trocar-contact", 75.0, 6, contact_free_s=25.0)
+    js, truth = session.joint_states, session.truth
+    cfg = PipelineConfig(calibration_s=20.0)
+    p = ArmPipeline("PSM1", seal, cfg)
+    offered: list[float] = []
+    p.on_offer = lambda ts: offered.extend(ts.tolist())
+    flags = np.zeros(len(js), bool)
+    for i in range(len(js)):
+        est, _ = p.process(msg(js, i))
+        flags[i] = est.free
+    idx = np.searchsorted(js.t, offered)
+    assert truth.in_contact[js.t > 25.0].sum() > 1000    # the session has contacts to refuse
+    assert len(offered) > 5000
+    assert not truth.in_contact[idx].any()
+    contact = truth.in_contact & (np.linalg.norm(truth.external_wrench[:, :3], axis=1) > 1.0)
+    assert not flags[contact].any()                      # contacts above 1 N are never "free"
+    assert p.counters.discarded_onsets > 0               # onsets were dropped from the line
