@@ -67,7 +67,7 @@ def markdown(results: dict[str, Any], command: str, wall_s: float) -> str:
     lengths = [str(float(L)) for L in cfg["lengths_s"]]
     lhead = [f"{float(L):g} s" for L in cfg["lengths_s"]]
     rec = results["recipes"]
-    out = [f"# Paper reproduction on the simulator\n",
+    out = ["# Paper reproduction on the simulator\n",
            f"Command: `{command}` ({wall_s / 60:.1f} min wall, {results['torch_threads']} torch "
            f"threads, {platform.processor() or platform.machine()}).\n",
            "Wu, Yilmaz, Kazanzides, Tumerdem, *Estimation of Trocar and Tool Interaction Forces "
