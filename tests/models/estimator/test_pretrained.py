@@ -2,18 +2,27 @@
 
 import numpy as np
 import pytest
+import torch
 
 from adapters.sim.scenarios import run_scenario
 from models.errors import ConfigError
 from models.estimator.free_space import FreeSpaceModel
 from models.estimator.pretrained import PRETRAINED, load_pretrained, pretrained_path
 
+@pytest.fixture(autouse=True)
+def one_torch_thread():
+    """Small tensors: on a shared 2-core machine two torch threads wait on each other."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
 #: RMSE / torque std on a fresh 30 s session (seed 777, never trained on). Measured with the
 #: shipped weights: base per joint 0.60 0.39 0.17 0.19 0.17 0.19 (mean 0.28), seal 0.68 0.38
 #: 0.06 0.10 0.15 0.19 (mean 0.26); the bounds leave a margin (retraining changes them a
 #: little, a broken model predicts about 1 or more).
 SCENARIO = {"base": "free-space", "seal": "free-space-seal"}
-
 
 @pytest.mark.parametrize("name", PRETRAINED)
 def test_pretrained_predicts_fresh_free_motion(name):
@@ -26,7 +35,6 @@ def test_pretrained_predicts_fresh_free_motion(name):
     ratio = np.sqrt(np.mean((pred - js.effort) ** 2, axis=0)) / js.effort.std(axis=0)
     assert np.all(ratio < 0.8), ratio
     assert ratio.mean() < 0.4, ratio
-
 
 def test_unknown_pretrained_name():
     with pytest.raises(ConfigError, match="unknown pretrained"):
