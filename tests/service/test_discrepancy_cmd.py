@@ -62,7 +62,7 @@ def test_hidden_payload_in_an_mcap_session_and_bad_input(tmp_path):
         {"name": "coulomb_friction"}, {"name": "viscous_friction"},
         {"name": "payload_mass", "params": {"mass_kg": 0.15, "link": 6, "position_m": [0, 0, 0]}}]}))
     session = tmp_path / "s.mcap"
-    wrenchd("simulate", "--scenario", "free-space", "--duration", "20", "--seed", "3",
+    wrenchd("simulate", "--scenario", "free-space", "--duration", "12", "--seed", "3",
             "--model", str(truth), "-o", str(session))
     out = tmp_path / "out.json"
     proc = wrenchd("discrepancy", "--model", str(given), "--measured", str(session),

@@ -77,8 +77,8 @@ def test_identification_recovers_friction_and_predicts_held_out_data_to_the_nois
     truth = PhysicsModel.from_dict({"rigid_body": truth_cfg, "effects": [
         {"name": "coulomb_friction", "params": {"fc": fc}},
         {"name": "viscous_friction", "params": {"fv": fv}}]})
-    traj = FourierTrajectory(FREE_SPACE_WORKSPACE, np.random.default_rng(5), 30.0, freq_hz=(0.05, 0.4))
-    js = simulate(truth, traj, 30.0, np.random.SeedSequence(5)).joint_states
+    traj = FourierTrajectory(FREE_SPACE_WORKSPACE, np.random.default_rng(5), 20.0, freq_hz=(0.05, 0.4))
+    js = simulate(truth, traj, 20.0, np.random.SeedSequence(5)).joint_states
     ident = identify_free_motion(js.t, js.position, js.velocity, js.effort)
     noise = np.array([0.015, 0.015, 0.05, 0.0008, 0.002, 0.002])   # the simulator's effort noise
     assert np.all(ident.heldout_rms < 1.3 * noise), ident.heldout_rms
