@@ -24,4 +24,4 @@ run: $(STAMP)
 	$(VENV)/bin/wrenchd serve
 
 test: $(STAMP)
-	$(PY) -m pytest -q
+	OMP_NUM_THREADS=1 $(PY) -m pytest -q

@@ -47,7 +47,7 @@ class GateConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    enter_sigma: float = Field(default=5.0, gt=0.0,
+    enter_sigma: float = Field(default=4.0, gt=0.0,
                                description="score that starts a contact [std of free residual]")
     exit_sigma: float = Field(default=3.0, gt=0.0,
                               description="score under which a contact may end [std]")
@@ -62,9 +62,9 @@ class GateConfig(BaseModel):
         description="floor of each joint's residual std [N m; N on insertion]")
     max_contact_s: float = Field(default=15.0, gt=0.0,
                                  description="a longer contact re-calibrates the gate [s]")
-    learn_sigma: float = Field(default=2.5, gt=0.0,
+    learn_sigma: float = Field(default=4.0, gt=0.0,
                                description="only samples scoring below this teach the scale")
-    train_sigma: float = Field(default=2.5, gt=0.0,
+    train_sigma: float = Field(default=2.0, gt=0.0,
                                description="only free samples scoring below this may train")
     max_growth: float = Field(default=2.0, ge=1.0,
                               description="the scale never exceeds this x its warm-up value")
@@ -178,6 +178,7 @@ class FreeMotionGate:
             for j in range(N_JOINTS):                  # re-scale on the present level
                 self._msq[j] = stats.EWMean(fading_factor=cfg.alpha)
                 self._msq[j].update(float(residual[j]) ** 2)
+                self._cap[j] = cfg.max_growth * max(abs(float(residual[j])), self._floor[j])
             self._in_contact, self._above = False, 0
             start, self._contact_start = self._contact_start, -1
             return GateDecision(False, score, start, recalibrated=True)

@@ -75,7 +75,7 @@ class PolicyConfig(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     name: Literal["gated", "ungated", "frozen", "drift-triggered", "periodic-reset"] = "gated"
-    release_delay_s: float = Field(default=1.5, ge=0.0,
+    release_delay_s: float = Field(default=2.5, ge=0.0,
                                    description="a free sample waits this long for a contact")
     reset_every_s: float = Field(default=120.0, gt=0.0,
                                  description="periodic-reset: back to the initial net [s]")

@@ -31,12 +31,13 @@ def test_a_contact_is_detected_and_not_chopped_by_a_dip():
     force[1900:2300] = 1.5
     force[2000:2010] = 0.0                             # the force crosses zero for 50 ms
     r[:, 2] += force
-    out = run(FreeMotionGate(GateConfig(warmup_samples=500)), r)
+    cfg = GateConfig(warmup_samples=500)
+    out = run(FreeMotionGate(cfg), r)
     free = np.array([d.free for d in out])
     assert free[1000:1500].mean() > 0.99
     onset = 1500 + int(np.argmax(~free[1500:]))
-    # found while the force still ramps: where it crosses enter_sigma x scale (5 x 0.1 N)
-    crossing = 1500 + int(np.argmax(force[1500:] > 0.5))
+    # found while the force still ramps: where it crosses enter_sigma x scale (floor 0.1 N)
+    crossing = 1500 + int(np.argmax(force[1500:] > cfg.enter_sigma * 0.1))
     assert crossing - 15 <= onset <= crossing + 15
     assert not free[onset:2300].any()                  # one contact, the dip included
     assert free[2500:].mean() > 0.99                   # and it ends
