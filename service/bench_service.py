@@ -38,16 +38,20 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def _config(path: Path, endpoint: str, arms: list[str], log_dir: Path) -> None:
+def _config(path: Path, endpoint: str, arms: list[str], log_dir: Path,
+            adaptation: bool = True, log: bool = True) -> None:
     lines = ['robot = "external"', "[zenoh]", f'listen = ["{endpoint}"]', "[log]",
-             f'directory = "{log_dir}"', "[ring]", "capacity = 4000"]
+             f'directory = "{log_dir}"', f"enabled = {str(log).lower()}", "[ring]",
+             "capacity = 4000"]
     for arm in arms:
-        lines += ["[[arms]]", f'name = "{arm}"', 'encoding = "json"']
+        lines += ["[[arms]]", f'name = "{arm}"', 'encoding = "json"',
+                  "[arms.pipeline.adaptation]", f"enabled = {str(adaptation).lower()}"]
     path.write_text("\n".join(lines) + "\n")
 
 
 def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 20.0,
-                  warmup_s: float = 3.0) -> dict[str, Any]:
+                  warmup_s: float = 3.0, adaptation: bool = True,
+                  log: bool = True) -> dict[str, Any]:
     """Run the benchmark; returns the result dictionary."""
     from adapters.sim.scenarios import run_scenario
     from adapters.sim.simulator import SimulatorConfig
@@ -64,7 +68,7 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
                                    js.effort[i]) for i in range(n)]
     endpoint = f"tcp/127.0.0.1:{_free_port()}"
     workdir = Path(tempfile.mkdtemp(prefix="wrenchd-bench-"))
-    _config(workdir / "bench.toml", endpoint, arms, workdir / "logs")
+    _config(workdir / "bench.toml", endpoint, arms, workdir / "logs", adaptation, log)
     daemon = subprocess.Popen([sys.executable, "-m", "service.cli", "serve", "--config",
                                str(workdir / "bench.toml")], stdout=subprocess.PIPE,
                               stderr=subprocess.PIPE, text=True)
@@ -86,15 +90,15 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
         pubs = {arm: session.declare_publisher(f"dvrk/{arm}/measured_js") for arm in arms}
         time.sleep(1.0)                                     # let the routes settle
         period_ns = int(1e9 / rate_hz)
+        # Pace by sleeping, never by spinning: a spinning publisher holds the GIL and delays
+        # this process's own subscriber callbacks, which would be measured as daemon latency.
+        sys.setswitchinterval(1e-4)
         start = time.perf_counter_ns()
         for i in range(n):
             due = start + i * period_ns
-            while True:
-                now = time.perf_counter_ns()
-                if now >= due:
-                    break
-                if due - now > 300_000:
-                    time.sleep((due - now - 200_000) / 1e9)
+            now = time.perf_counter_ns()
+            if due > now:
+                time.sleep((due - now) / 1e9)
             for arm in arms:
                 sent_ns[arm][i] = time.perf_counter_ns()
                 pubs[arm].put(payloads[i])
@@ -147,4 +151,5 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
             "dropped": int(sum(a["missing"] + a["ring_dropped"] for a in per_arm.values())),
             "rate_hz": float(np.median([a["rate_hz"] for a in per_arm.values()])),
             "arms": n_arms, "target_rate_hz": rate_hz, "duration_s": duration_s,
-            "warmup_s": warmup_s, "cpu_count": os.cpu_count(), "per_arm": per_arm}
+            "warmup_s": warmup_s, "cpu_count": os.cpu_count(), "adaptation": adaptation,
+            "mcap_log": log, "per_arm": per_arm}

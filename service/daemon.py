@@ -48,6 +48,7 @@ from service.pipeline import ArmPipeline, Estimate, Event
 from service.worker import ProcessAdaptation, WorkerProcess
 
 _ENCODE = json.JSONEncoder(separators=(",", ":"), allow_nan=False).encode
+SWITCH_INTERVAL_S = 2e-4
 
 
 def load_free_space(spec: str) -> FreeSpaceModel:
@@ -306,6 +307,9 @@ class Daemon:
 
     def start(self) -> None:
         s = self.settings
+        # The zenoh callback threads and the estimation threads share the GIL; at the default
+        # 5 ms switch interval a sample could wait that long for its thread to run.
+        sys.setswitchinterval(SWITCH_INTERVAL_S)
         adapt = {a.name: a.pipeline.adaptation for a in s.arms
                  if a.pipeline.adaptation.enabled and a.pipeline.policy.name != "frozen"}
         self.models = {a.name: load_free_space(a.model) for a in s.arms}

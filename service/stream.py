@@ -5,8 +5,9 @@ The simulated arm publishes its joint states in real time on ``{prefix}/{arm}/me
 simulator's ground truth, is recorded to MCAP each second. ``wrenchd serve`` starts one
 beside the daemon on its embedded default; the daemon subscribes to the same key.
 
-The scenario is simulated in blocks of up to ten minutes; each new block starts a fresh
-trajectory (the next seed), with time continuing.
+The scenario is simulated in blocks of up to two minutes; each new block starts a fresh
+trajectory (the next seed), with time continuing. The first block has no contact in its first
+minute: the daemon's contact-free calibration of step 2.
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from adapters.messages import encode_joint_state, stamp_ns_of
 from adapters.zenoh_io import ZenohConfig, open_session
 
 BLOCK_S = 120.0
+CONTACT_FREE_START_S = 60.0     # the daemon's default calibration_s
 
 
 
@@ -54,8 +56,10 @@ def serve_simulated(scenario: str, seed: int, duration_s: float | None, out_dir:
                 length = BLOCK_S if duration_s is None else min(BLOCK_S, duration_s - offset)
                 if length <= 0:
                     break
+                # the first block leaves the daemon its contact-free calibration minute
                 sim = run_scenario(scenario, length, seed + block,
-                                   config=SimulatorConfig(publish_rate_hz=rate_hz))
+                                   config=SimulatorConfig(publish_rate_hz=rate_hz),
+                                   contact_free_s=CONTACT_FREE_START_S if block == 0 else None)
                 js = dataclasses.replace(sim.joint_states, t=sim.joint_states.t + offset)
                 truth = sim.truth
                 if t0_wall is None:                     # the clock starts with the first sample
