@@ -63,6 +63,8 @@ def run(kind: str, json_path: str | None, duration_s: float, arms: int = 1,
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     if kind == "inference":
         result = bench_inference(duration_s=duration_s)
+    elif kind == "arm":
+        result = bench_arm_thread(duration_s=duration_s)
     elif kind == "service":
         from service.bench_service import bench_service
 
@@ -79,3 +81,54 @@ def run(kind: str, json_path: str | None, duration_s: float, arms: int = 1,
     if json_path:
         Path(json_path).write_text(text + "\n")
     return 0
+
+
+def bench_arm_thread(duration_s: float = 20.0) -> dict:
+    """Per-sample cost of what a daemon arm thread does, without zenoh: decode the JSON joint
+    state, run the pipeline (frozen: no adaptation rounds), encode the wrench, log both
+    messages to MCAP. Percentiles per stage [us], one ``trocar`` session at 200 Hz."""
+    import tempfile
+
+    import numpy as np
+
+    from adapters.mcap_log import TOPIC_ESTIMATE, LogConfig, McapLog
+    from adapters.mcap_session import TOPIC_JOINT_STATES
+    from adapters.messages import decode_joint_state, encode_joint_state, encode_wrench
+    from adapters.sim.scenarios import run_scenario
+    from models.estimator.pretrained import load_pretrained
+    from service.daemon import _estimate_json
+    from service.pipeline import ArmPipeline, PipelineConfig, PolicyConfig
+
+    js = run_scenario("trocar", duration_s, 1).joint_states
+    payloads = [encode_joint_state("json", int(round(js.t[i] * 1e9)), js.names, js.position[i],
+                                   js.velocity[i], js.effort[i]) for i in range(len(js))]
+    pipeline = ArmPipeline("PSM1", load_pretrained("seal"),
+                           PipelineConfig(policy=PolicyConfig(name="frozen")))
+    stages: dict[str, list[float]] = {"decode": [], "pipeline": [], "encode": [], "log": []}
+    with tempfile.TemporaryDirectory() as tmp:
+        log = McapLog("PSM1", LogConfig(directory=tmp))
+        for payload in payloads:
+            t0 = time.perf_counter()
+            msg = decode_joint_state("json", payload)
+            t1 = time.perf_counter()
+            est, _ = pipeline.process(msg)
+            t2 = time.perf_counter()
+            encode_wrench("json", est.stamp_ns, est.wrench, "psm_base",
+                          {"free": est.free, "model_version": est.model_version})
+            t3 = time.perf_counter()
+            log.write(TOPIC_JOINT_STATES, est.stamp_ns, encode_joint_state(
+                "json", est.stamp_ns, js.names, msg.position, msg.velocity, msg.effort))
+            log.write_json(TOPIC_ESTIMATE, est.stamp_ns, _estimate_json(est))
+            log.tick()
+            t4 = time.perf_counter()
+            for name, a, b in (("decode", t0, t1), ("pipeline", t1, t2), ("encode", t2, t3),
+                               ("log", t3, t4)):
+                stages[name].append((b - a) * 1e6)
+        log.close()
+    total = np.sum([stages[k] for k in stages], axis=0)
+    out = {f"{k}_p50_us": round(float(np.percentile(v, 50)), 1) for k, v in stages.items()}
+    out.update({f"{k}_p99_us": round(float(np.percentile(v, 99)), 1) for k, v in stages.items()})
+    out.update({"total_p50_us": round(float(np.percentile(total, 50)), 1),
+                "total_p99_us": round(float(np.percentile(total, 99)), 1),
+                "samples": len(payloads), "threads": 1})
+    return out

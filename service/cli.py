@@ -125,7 +125,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     from service.bench import run
 
     if args.duration is None:
-        args.duration = 20.0 if args.kind == "service" else 60.0
+        args.duration = 20.0 if args.kind in ("service", "arm") else 60.0
     return run(args.kind, args.json, args.duration, args.arms, args.rate)
 
 
@@ -208,9 +208,10 @@ def build_parser() -> argparse.ArgumentParser:
     ech.set_defaults(func=_cmd_echo)
 
     bench = sub.add_parser("bench", help="measure speed (medians and percentiles, one run)")
-    bench.add_argument("kind", choices=["inference", "service", "replay"],
-                       help="inference: estimator step; service: daemon end to end over "
-                            "loopback zenoh; replay: replay throughput")
+    bench.add_argument("kind", choices=["inference", "arm", "service", "replay"],
+                       help="inference: estimator step; arm: per-sample cost of a daemon arm "
+                            "thread without zenoh; service: daemon end to end over loopback "
+                            "zenoh; replay: replay throughput")
     bench.add_argument("--json", help="also write the result to this file")
     bench.add_argument("--duration", type=float, default=None,
                        help="inference/replay: session length [s] (60); service: measured [s] (20)")
