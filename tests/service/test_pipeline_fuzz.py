@@ -47,10 +47,17 @@ def seal_model():
     return load_pretrained("seal")
 
 
+#: The synthetic stream's efforts are not what the seal model predicts (its residual is
+#: ~0.1-1 N m), so the gate's noise floor is raised to that level: these tests are about
+#: defects never reaching training, not about the gate's calibration.
+WIDE_FLOOR = (1.0, 1.0, 5.0, 0.5, 0.5, 0.5)
+
+
 def make_pipeline(policy: str) -> tuple[ArmPipeline, list[float]]:
     # no calibration phase and a 200-sample gate warm-up, so short streams reach the gate
     pipeline = ArmPipeline("PSM1", seal_model(), PipelineConfig(
-        policy=POLICIES[policy], calibration_s=0.0, gate=GateConfig(warmup_samples=200)))
+        policy=POLICIES[policy], calibration_s=0.0,
+        gate=GateConfig(warmup_samples=200, min_std=WIDE_FLOOR)))
     offered: list[float] = []
     pipeline.on_offer = lambda times: offered.extend(float(t) for t in times)
     return pipeline, offered
@@ -182,9 +189,7 @@ def test_bad_samples_are_errors_and_never_offered(policy, actions):
 def test_long_stream_with_every_defect_gated():
     """One deterministic 700-sample stream past the gate's warm-up (200 samples), a defect of
     each kind every 25 samples: the gate calibrates and the gated policy offers free samples
-    (fewer than the 600 an adaptation round needs, to stay quick). The synthetic efforts are
-    not the seal model's, so most samples score above the gate's ``train_sigma``: few are
-    offered, and none of them bad."""
+    (fewer than the 600 an adaptation round needs, to stay quick), none of them bad."""
     kinds = sorted(BAD_KINDS)
     actions = []
     for i in range(700):
@@ -195,7 +200,7 @@ def test_long_stream_with_every_defect_gated():
         else:
             actions.append((GOOD, 0, 0.0))
     pipeline = run_stream("gated-no-delay", actions)
-    assert pipeline.gate.calibrated and pipeline.counters.offered > 0
+    assert pipeline.gate.calibrated and pipeline.counters.offered > 300
 
 
 # -- the daemon's path: payload -> decode -> reject or process ----------------------------
