@@ -10,7 +10,8 @@ reports it and goes on estimating with the last model.
 
 Accepted versions are checkpointed as ``{models_dir}/{arm}/corr-v{N:04d}.pt`` (the
 estimator's safe checkpoint format) so any version can be loaded again (``corr_checkpoint``
-in the arm's settings).
+in the arm's settings). The worker exits by itself when the daemon dies (``kill -9``
+included): it watches its parent process.
 """
 
 from __future__ import annotations
@@ -44,6 +45,7 @@ def _run(inbox: mp.Queue, outbox: mp.Queue, configs: dict[str, dict[str, Any]],
         os.nice(10)
     except OSError:
         pass
+    parent = os.getppid()
     adapters = {arm: Adapter(AdaptationConfig(**cfg), normalisation=normalisations.get(arm))
                 for arm, cfg in configs.items()}
     t0 = time.monotonic()
@@ -60,6 +62,8 @@ def _run(inbox: mp.Queue, outbox: mp.Queue, configs: dict[str, dict[str, Any]],
                     break
         except queue.Empty:
             messages = []
+        if os.getppid() != parent:          # the daemon died (kill -9): do not linger
+            return
         now = time.monotonic() - t0
         for kind, arm, payload in messages:
             if kind == "stop":

@@ -1,0 +1,61 @@
+"""Faults with real processes: the daemon killed with SIGKILL leaves a readable log."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+
+from adapters.mcap_session import read_session_report
+from adapters.messages import encode_joint_state
+from adapters.sim.scenarios import run_scenario
+from adapters.zenoh_io import ZenohConfig, open_session
+from tests.service.test_daemon import free_port, wait_for, write_config
+
+
+def test_kill_9_loses_at_most_about_a_second_of_log(tmp_path):
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    config = write_config(tmp_path / "wrenchd.toml", endpoint, "json", tmp_path / "logs")
+    daemon = subprocess.Popen([sys.executable, "-m", "service.cli", "serve", "--config",
+                               str(config)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                              text=True)
+    js = run_scenario("trocar", 6.0, 5).joint_states
+    received: list[int] = []
+    session = None
+    try:
+        assert "measured_js" in daemon.stdout.readline()
+        session = open_session(ZenohConfig(connect=[endpoint]))
+        sub = session.declare_subscriber("dvrk/PSM2/wrenchd/measured_cf",
+                                         lambda s: received.append(1))
+        pub = session.declare_publisher("dvrk/PSM2/measured_js")
+        time.sleep(0.5)
+        start = time.monotonic()
+        for i in range(len(js)):                        # 6 s at 200 Hz, in real time
+            delay = start + js.t[i] - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+            pub.put(encode_joint_state("json", int(round(js.t[i] * 1e9)), js.names,
+                                       js.position[i], js.velocity[i], js.effort[i]))
+        wait_for(lambda: len(received) >= len(js), 10.0, "every wrench")
+        daemon.send_signal(signal.SIGKILL)              # no flush, no footer
+        daemon.wait(timeout=10)
+        pub.undeclare()
+        sub.undeclare()
+    finally:
+        if session is not None:
+            session.close()
+        if daemon.poll() is None:
+            daemon.kill()
+        daemon.communicate(timeout=10)
+    assert daemon.returncode == -signal.SIGKILL
+    logs = sorted((tmp_path / "logs").glob("PSM2-*.mcap"))
+    assert len(logs) == 1
+    recovered, info = read_session_report(logs[0])
+    assert info.truncated                                # killed: no summary, no footer
+    n = len(recovered.joint_states)
+    # flushed every second: at most ~1 s (200 samples) plus what was queued is lost
+    assert len(js) - 300 <= n <= len(js)
+    np.testing.assert_allclose(recovered.joint_states.effort, js.effort[:n], rtol=1e-9)
