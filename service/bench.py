@@ -65,7 +65,7 @@ def run(kind: str, json_path: str | None, duration_s: float, arms: int = 1,
         result = bench_inference(duration_s=duration_s)
     elif kind == "arm":
         result = bench_arm_thread(duration_s=duration_s)
-    elif kind == "service":
+    elif kind in ("service", "soak"):
         from service.bench_service import bench_service
 
         result = bench_service(n_arms=arms, rate_hz=rate_hz, duration_s=duration_s)

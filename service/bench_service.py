@@ -49,23 +49,48 @@ def _config(path: Path, endpoint: str, arms: list[str], log_dir: Path,
     path.write_text("\n".join(lines) + "\n")
 
 
+def _rss_mb(pid: int) -> float:
+    """Resident memory of ``pid`` and its children [MB] (Linux /proc)."""
+    total = 0
+    pids = [pid]
+    try:
+        children = Path(f"/proc/{pid}/task/{pid}/children").read_text().split()
+        pids += [int(c) for c in children]
+    except OSError:
+        pass
+    for p in pids:
+        try:
+            for line in Path(f"/proc/{p}/status").read_text().splitlines():
+                if line.startswith("VmRSS:"):
+                    total += int(line.split()[1])
+        except OSError:
+            continue
+    return total / 1024.0
+
+
 def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 20.0,
                   warmup_s: float = 3.0, adaptation: bool = True,
                   log: bool = True) -> dict[str, Any]:
-    """Run the benchmark; returns the result dictionary."""
+    """Run the benchmark; returns the result dictionary.
+
+    Also samples the daemon's resident memory (with its worker) once a second: the soak run
+    is this benchmark with a long ``duration_s`` (``wrenchd bench soak``)."""
     from adapters.sim.scenarios import run_scenario
     from adapters.sim.simulator import SimulatorConfig
 
     arms = [f"PSM{k + 1}" for k in range(n_arms)]
     total_s = warmup_s + duration_s
-    sim = run_scenario("trocar", total_s + 1.0, 11,
+    # a long soak repeats one simulated minute (time keeps increasing)
+    block_s = min(total_s, 60.0)
+    sim = run_scenario("trocar", block_s + 1.0, 11,
                        config=SimulatorConfig(publish_rate_hz=rate_hz,
                                               internal_rate_hz=max(1000.0, rate_hz)))
     js = sim.joint_states
     n = int(total_s * rate_hz)
-    stamps = [int(round(t * 1e9)) for t in js.t[:n]]
-    payloads = [encode_joint_state("json", stamps[i], js.names, js.position[i], js.velocity[i],
-                                   js.effort[i]) for i in range(n)]
+    m = int(block_s * rate_hz)
+    stamps = [int(round(i * 1e9 / rate_hz)) for i in range(n)]
+    payloads = [encode_joint_state("json", stamps[i], js.names, js.position[i % m],
+                                   js.velocity[i % m], js.effort[i % m]) for i in range(n)]
     endpoint = f"tcp/127.0.0.1:{_free_port()}"
     workdir = Path(tempfile.mkdtemp(prefix="wrenchd-bench-"))
     _config(workdir / "bench.toml", endpoint, arms, workdir / "logs", adaptation, log)
@@ -93,9 +118,14 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
         # Pace by sleeping, never by spinning: a spinning publisher holds the GIL and delays
         # this process's own subscriber callbacks, which would be measured as daemon latency.
         sys.setswitchinterval(1e-4)
+        rss: list[tuple[float, float]] = []
         start = time.perf_counter_ns()
+        next_rss = 0.0
         for i in range(n):
             due = start + i * period_ns
+            if (due - start) / 1e9 >= next_rss:
+                rss.append((next_rss, _rss_mb(daemon.pid)))
+                next_rss += 1.0
             now = time.perf_counter_ns()
             if due > now:
                 time.sleep((due - now) / 1e9)
@@ -146,7 +176,12 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
                             "rounds")}
         latencies.extend(lat)
     pooled = np.array(latencies) if latencies else np.array([np.nan])
-    return {"e2e_p50_us": float(np.percentile(pooled, 50)),
+    after_warmup = [mb for t, mb in rss if t >= warmup_s] or [np.nan]
+    memory = {"rss_start_mb": round(after_warmup[0], 1), "rss_end_mb": round(after_warmup[-1], 1),
+              "rss_max_mb": round(float(np.max(after_warmup)), 1),
+              "rss_growth_mb": round(after_warmup[-1] - after_warmup[0], 1),
+              "rss_every_60s_mb": [round(mb, 1) for t, mb in rss if t % 60 == 0]}
+    return {**memory, "e2e_p50_us": float(np.percentile(pooled, 50)),
             "e2e_p99_us": float(np.percentile(pooled, 99)),
             "dropped": int(sum(a["missing"] + a["ring_dropped"] for a in per_arm.values())),
             "rate_hz": float(np.median([a["rate_hz"] for a in per_arm.values()])),
