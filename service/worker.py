@@ -19,6 +19,7 @@ from __future__ import annotations
 import multiprocessing as mp
 import os
 import queue
+import signal
 import time
 import traceback
 from pathlib import Path
@@ -41,6 +42,11 @@ def _run(inbox: mp.Queue, outbox: mp.Queue, configs: dict[str, dict[str, Any]],
     from service.adaptation import Adapter
 
     torch.set_num_threads(1)
+    # Ctrl-C in a terminal reaches the whole process group: the daemon stops this worker with
+    # a "stop" message (and it exits by itself if the daemon dies), so it ignores the signals
+    # instead of dying mid-round with a traceback.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
     try:
         os.nice(10)
     except OSError:
