@@ -5,17 +5,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import torch
 
 from service.real_data_cmd import evaluate, markdown
-
-@pytest.fixture(autouse=True)
-def one_torch_thread():
-    """Small tensors: on a shared 2-core machine two torch threads wait on each other."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
 
 
 DATA = Path(os.environ.get("WRENCHD_WPI_DATA", Path(__file__).parents[3] / "shared/data/wpi-psm"))

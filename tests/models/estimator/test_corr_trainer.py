@@ -10,15 +10,6 @@ from models.estimator.training import (CorrTrainer, corr_inputs, fit_corr, predi
                                        recipe)
 
 
-@pytest.fixture(autouse=True)
-def one_torch_thread():
-    """Small tensors: on a shared 2-core machine two torch threads wait on each other."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
-
-
 def test_batched_step1_equals_one_segment_at_a_time(trained_free_space, trocar_train_sessions):
     model = trained_free_space.model
     xs = [np.c_[s.joint_states.position, s.joint_states.velocity][:n]

@@ -2,20 +2,11 @@
 
 import numpy as np
 import pytest
-import torch
 
 from adapters.sim.scenarios import run_scenario
 from models.errors import ConfigError
 from models.estimator.free_space import FreeSpaceModel
 from models.estimator.pretrained import PRETRAINED, load_pretrained, pretrained_path
-
-@pytest.fixture(autouse=True)
-def one_torch_thread():
-    """Small tensors: on a shared 2-core machine two torch threads wait on each other."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
 
 
 #: RMSE / torque std on a fresh 30 s session (seed 777, never trained on). Measured with the
