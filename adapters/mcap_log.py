@@ -18,8 +18,9 @@ Crash safety: at least every ``flush_interval_s`` the open chunk is closed and w
 file flushed (optionally fsync'ed), so ``kill -9`` loses at most about that much; the session
 reader recovers every complete chunk. Rotation starts a new file after ``rotate_mb`` or
 ``rotate_s``. A write that fails (disk full, directory gone) never raises into the
-estimator: the log drops the file, counts what it could not write, reports the problem once
-through :attr:`McapLog.problem`, and retries a fresh file every ``retry_s``.
+estimator: the log drops the file, counts what it could not write, reports the problem through
+:attr:`McapLog.problem` (cleared when a fresh file is open), and retries a fresh file every
+``retry_s``.
 """
 
 from __future__ import annotations
@@ -113,7 +114,7 @@ class McapLog:
         self.paths: list[Path] = []
         self.written = 0
         self.lost = 0
-        self.problem: str | None = None       # set on failure, read and cleared by the caller
+        self.problem: str | None = None       # set on failure, cleared when a file opens
         self._opened_at = 0.0
         self._flushed_at = 0.0
         self._retry_at = 0.0
@@ -150,6 +151,7 @@ class McapLog:
         self.path = path
         self.paths.append(path)
         self._opened_at = self._flushed_at = now
+        self.problem = None                               # writing again
         return True
 
     def _fail(self, why: str) -> None:

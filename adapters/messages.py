@@ -102,13 +102,19 @@ def _header(message: dict[str, Any]) -> tuple[int, str]:
     return sec * _NS + nanosec, frame
 
 
-def _decode_json_joint_state(payload: bytes) -> JointStateMsg:
+def _json_object(payload: bytes, what: str) -> dict[str, Any]:
+    """Parse ``payload`` as one JSON object, or raise DataError naming ``what`` it should be."""
     try:
         message = json.loads(payload)
     except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
         raise DataError(f"not JSON: {exc}") from None
     if not isinstance(message, dict):
-        raise DataError(f"a joint state must be a JSON object, got {type(message).__name__}")
+        raise DataError(f"a {what} must be a JSON object, got {type(message).__name__}")
+    return message
+
+
+def _decode_json_joint_state(payload: bytes) -> JointStateMsg:
+    message = _json_object(payload, "joint state")
     stamp_ns, frame = _header(message)
     names = message.get("name", [])
     if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
@@ -139,12 +145,7 @@ def _json_wrench(stamp_ns: int, frame_id: str, wrench: np.ndarray,
 
 
 def _decode_json_wrench(payload: bytes) -> tuple[int, str, np.ndarray, dict[str, Any]]:
-    try:
-        message = json.loads(payload)
-    except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
-        raise DataError(f"not JSON: {exc}") from None
-    if not isinstance(message, dict):
-        raise DataError(f"a wrench must be a JSON object, got {type(message).__name__}")
+    message = _json_object(payload, "wrench")
     stamp_ns, frame = _header(message)
     w = message.get("wrench")
     parts = [w.get(k) if isinstance(w, dict) else None for k in ("force", "torque")]

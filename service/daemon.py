@@ -38,7 +38,7 @@ import numpy as np
 from adapters.mcap_log import TOPIC_ESTIMATE, TOPIC_EVENTS, TOPIC_STATUS, McapLog
 from adapters.mcap_session import TOPIC_JOINT_STATES
 from adapters.messages import decode_joint_state, encode_joint_state, encode_wrench
-from adapters.zenoh_io import ZenohConfig, open_session
+from adapters.zenoh_io import open_session
 from models.errors import ConfigError, DataError
 from models.estimator.free_space import FreeSpaceModel
 from models.series import JOINT_NAMES
@@ -248,10 +248,8 @@ class ArmRuntime:
                 self._log_problem_reported = True
                 self._publish_events([Event(time.time(), "log_error",
                                             {"arm": self.name, "error": self.log.problem})])
-            elif self.log.problem is None:
+            elif self.log.problem is None:                # a fresh file is open again
                 self._log_problem_reported = False
-            if self.log.problem and self.log.path is not None and self.log._writer is not None:
-                self.log.problem = None                 # a fresh file is open again
             if stopping:
                 break
 
@@ -386,7 +384,3 @@ class Daemon:
             print(f"wrenchd: {name} stopped: {n} estimates, {dropped} dropped, {errors} errors; "
                   f"log {', '.join(paths) or '(none)'}", flush=True)
         self.arms = []
-
-
-def robot_zenoh(connect: list[str], listen: list[str], mode: str) -> ZenohConfig:
-    return ZenohConfig(mode=mode, connect=connect, listen=listen)

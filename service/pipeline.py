@@ -221,6 +221,7 @@ class ArmPipeline:
         self._adapt_until = -np.inf           # drift-triggered: adapt only after a drift
         self._next_reset: float | None = None
         self._calibration_end: float | None = None
+        self._was_contact = False
 
     # -- validation ---------------------------------------------------------------------
     def _error(self, t: float, kind: str, reason: str) -> Event:
@@ -293,7 +294,7 @@ class ArmPipeline:
             events.append(Event(t, "gate_recalibrated", {"arm": self.arm,
                                                          "max_contact_s":
                                                          self.config.gate.max_contact_s}))
-        self._contact_events(t, decision.free, decision.contact_started, events)
+        self._contact_events(t, events)
         if decision.free and not calibrating and self.drift.update(t, out.external_torque):
             self.counters.drifts += 1
             self._adapt_until = t + self.config.adaptation.eager_s
@@ -331,8 +332,8 @@ class ArmPipeline:
     def calibrating(self) -> bool:
         return self._calibration_end is None or bool(np.isfinite(self._calibration_end))
 
-    def _contact_events(self, t: float, free: bool, started: int, events: list[Event]) -> None:
-        was = getattr(self, "_was_contact", False)
+    def _contact_events(self, t: float, events: list[Event]) -> None:
+        was = self._was_contact
         now = self.gate.in_contact
         if now and not was:
             events.append(Event(t, "contact_start", {"arm": self.arm}))
