@@ -26,10 +26,15 @@ estimator: the log drops the file, counts what it could not write, reports the p
 from __future__ import annotations
 
 import json
+import math
 import os
+import threading
 import time
+from collections import deque
 from pathlib import Path
-from typing import Any, IO
+from typing import Any, Callable, IO
+
+import numpy as np
 
 from mcap.writer import CompressionType, Writer
 from pydantic import BaseModel, ConfigDict, Field
@@ -73,6 +78,38 @@ STATUS_SCHEMA: dict[str, Any] = {
     "description": "Daemon status snapshot (the answer of the status queryable).",
     "type": "object",
 }
+
+
+def _json_numbers(values: np.ndarray) -> str:
+    """A JSON array of floats, ``null`` where not finite (the schema allows it)."""
+    items = values.tolist()
+    if all(map(math.isfinite, items)):
+        return repr(items)
+    return "[" + ",".join(repr(v) if math.isfinite(v) else "null" for v in items) + "]"
+
+
+def estimate_record(stamp_ns: int, frame_id: str, wrench: np.ndarray, free: bool, score: float,
+                    model_version: int, restarted: bool, predicted: np.ndarray,
+                    external: np.ndarray) -> bytes:
+    """One ``/wrenchd/estimate`` message (:data:`ESTIMATE_SCHEMA`), formatted directly: it is
+    written for every sample, and building nested dicts for ``json`` costs several times more.
+    ``wrench`` must be finite (the pipeline never emits a non-finite one)."""
+    w = [float(v) for v in wrench]
+    if not all(map(math.isfinite, w)):
+        raise ValueError("an estimate's wrench must be finite")
+    score = float(score)
+    score = min(score, 1e9) if math.isfinite(score) else 1e9
+    sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
+    return (f'{{"header":{{"stamp":{{"sec":{sec},"nanosec":{nanosec}}},'
+            f'"frame_id":{json.dumps(frame_id)}}},'
+            f'"wrench":{{"force":{{"x":{w[0]!r},"y":{w[1]!r},"z":{w[2]!r}}},'
+            f'"torque":{{"x":{w[3]!r},"y":{w[4]!r},"z":{w[5]!r}}}}},'
+            f'"free":{"true" if free else "false"},"score":{score!r},'
+            f'"model_version":{int(model_version)},"restarted":{"true" if restarted else "false"},'
+            f'"predicted":{_json_numbers(predicted)},"external":{_json_numbers(external)}}}'
+            ).encode()
+
+
 SCHEMAS = {TOPIC_JOINT_STATES: JOINT_STATE_SCHEMA, TOPIC_ESTIMATE: ESTIMATE_SCHEMA,
            TOPIC_EVENTS: EVENT_SCHEMA, TOPIC_STATUS: STATUS_SCHEMA}
 
@@ -224,3 +261,62 @@ class McapLog:
         size_mb = self._file.tell() / 1e6 if self._file is not None else 0.0
         if size_mb >= self.config.rotate_mb or now - self._opened_at >= self.config.rotate_s:
             self.close()
+
+
+Payload = bytes | Callable[[], bytes]
+
+
+class LogWriterThread:
+    """Moves MCAP writing off the threads that estimate.
+
+    Estimation threads :meth:`put` records (the payload may be a function that makes the
+    bytes: formatting then also happens here); one writer thread writes them to their
+    :class:`McapLog`, and flushes and rotates every log it serves (``tick``) every
+    ``interval_s``. The queue is bounded: beyond ``capacity`` records a record is counted in
+    its log's ``lost`` instead of growing memory without limit (a disk slower than the data).
+    :meth:`close` writes what is queued and finishes every log.
+    """
+
+    def __init__(self, logs: list[McapLog], interval_s: float = 0.02,
+                 capacity: int = 200_000) -> None:
+        self.logs = list(logs)
+        self.interval_s, self.capacity = interval_s, capacity
+        self._queue: deque[tuple[McapLog, str, int, Payload]] = deque()
+        self._stop = threading.Event()
+        self.errors = 0                                      # payload functions that raised
+        self._thread = threading.Thread(target=self._run, name="wrenchd-log", daemon=True)
+        self._thread.start()
+
+    def put(self, log: McapLog, topic: str, stamp_ns: int, payload: Payload) -> None:
+        """Queue one record (cheap: an append)."""
+        if len(self._queue) >= self.capacity:
+            log.lost += 1
+            return
+        self._queue.append((log, topic, stamp_ns, payload))
+
+    def _write_queued(self) -> None:
+        q = self._queue
+        while q:
+            log, topic, stamp_ns, payload = q.popleft()
+            if callable(payload):
+                try:
+                    payload = payload()
+                except Exception:  # noqa: BLE001 - a record that cannot be made is lost
+                    self.errors += 1
+                    log.lost += 1
+                    continue
+            log.write(topic, stamp_ns, payload)
+
+    def _run(self) -> None:
+        while not self._stop.wait(self.interval_s):
+            self._write_queued()
+            for log in self.logs:
+                log.tick()
+        self._write_queued()
+
+    def close(self) -> None:
+        """Write what is queued, stop the thread, finish every log."""
+        self._stop.set()
+        self._thread.join(timeout=30.0)
+        for log in self.logs:
+            log.close()

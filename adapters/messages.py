@@ -18,6 +18,7 @@ malformed bytes, wrong types, lengths that differ, no samples.
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 from dataclasses import dataclass
@@ -70,16 +71,28 @@ def stamp_ns_of(t_s: float) -> int:
 
 
 # -- JSON ---------------------------------------------------------------------------------
-def _vector(message: dict[str, Any], field: str) -> np.ndarray:
+_NUMBER_TYPES = frozenset((int, float))
+
+
+def _vector(message: dict[str, Any], field: str) -> list:
+    """The list of numbers under ``field`` (checked; bool and strings are not numbers)."""
     value = message.get(field)
     if not isinstance(value, list):
         raise DataError(f"field {field!r} must be a list of numbers, got {type(value).__name__}")
-    if not all(type(v) in (int, float) for v in value):
+    if not _NUMBER_TYPES.issuperset(map(type, value)):
         raise DataError(f"field {field!r} must hold only numbers")
+    return value
+
+
+def _arrays(position: list, velocity: list, effort: list) -> tuple[np.ndarray, ...]:
+    """float64 arrays of the three vectors; one conversion when their lengths agree."""
     try:
-        return np.asarray(value, dtype=np.float64)
+        if len(position) == len(velocity) == len(effort):
+            block = np.array((position, velocity, effort), dtype=np.float64)
+            return block[0], block[1], block[2]
+        return tuple(np.array(v, dtype=np.float64) for v in (position, velocity, effort))
     except OverflowError:
-        raise DataError(f"field {field!r} holds a number beyond float64") from None
+        raise DataError("a joint state field holds a number beyond float64") from None
 
 
 def _header(message: dict[str, Any]) -> tuple[int, str]:
@@ -119,8 +132,8 @@ def _decode_json_joint_state(payload: bytes) -> JointStateMsg:
     names = message.get("name", [])
     if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
         raise DataError("field 'name' must be a list of strings")
-    return JointStateMsg(stamp_ns, frame, tuple(names), _vector(message, "position"),
-                         _vector(message, "velocity"), _vector(message, "effort"))
+    return JointStateMsg(stamp_ns, frame, tuple(names), *_arrays(
+        _vector(message, "position"), _vector(message, "velocity"), _vector(message, "effort")))
 
 
 def _json_joint_state(stamp_ns: int, frame_id: str, names, position, velocity, effort) -> bytes:
@@ -131,17 +144,24 @@ def _json_joint_state(stamp_ns: int, frame_id: str, names, position, velocity, e
                     "effort": [float(v) for v in effort]}).encode()
 
 
+@functools.lru_cache(maxsize=64)
+def _json_string(text: str) -> str:
+    return json.dumps(text)
+
+
 def _json_wrench(stamp_ns: int, frame_id: str, wrench: np.ndarray,
                  extra: dict[str, Any] | None) -> bytes:
+    # Formatted directly: this runs for every published sample, and building the nested
+    # dicts for json costs 3x more. ``repr`` of a finite float is valid JSON.
     sec, nanosec = _split_ns(stamp_ns)
     f = [float(v) for v in wrench]
-    message: dict[str, Any] = {
-        "header": {"stamp": {"sec": sec, "nanosec": nanosec}, "frame_id": frame_id},
-        "wrench": {"force": {"x": f[0], "y": f[1], "z": f[2]},
-                   "torque": {"x": f[3], "y": f[4], "z": f[5]}}}
-    if extra:
-        message["wrenchd"] = extra
-    return _ENCODE(message).encode()
+    if not all(map(math.isfinite, f)):
+        raise ValueError("a wrench must be finite to be encoded")
+    tail = f',"wrenchd":{_ENCODE(extra)}}}' if extra else "}"
+    return (f'{{"header":{{"stamp":{{"sec":{sec},"nanosec":{nanosec}}},'
+            f'"frame_id":{_json_string(frame_id)}}},'
+            f'"wrench":{{"force":{{"x":{f[0]!r},"y":{f[1]!r},"z":{f[2]!r}}},'
+            f'"torque":{{"x":{f[3]!r},"y":{f[4]!r},"z":{f[5]!r}}}}}{tail}').encode()
 
 
 def _decode_json_wrench(payload: bytes) -> tuple[int, str, np.ndarray, dict[str, Any]]:
@@ -240,6 +260,13 @@ def check_encoding(encoding: str) -> str:
     if encoding not in ENCODINGS:
         raise ConfigError(f"unknown encoding {encoding!r}; choose one of {list(ENCODINGS)}")
     return encoding
+
+
+def prepare_encoding(encoding: str) -> None:
+    """Build what ``encoding`` needs now (the CDR type store takes ~0.3 s to build), so the
+    first message decoded on a hot path does not pay for it."""
+    if check_encoding(encoding) == "cdr":
+        _Cdr.get()
 
 
 def encode_joint_state(encoding: str, stamp_ns: int, names, position, velocity, effort,

@@ -96,7 +96,7 @@ def bench_arm_thread(duration_s: float = 20.0) -> dict:
     from adapters.messages import decode_joint_state, encode_joint_state, encode_wrench
     from adapters.sim.scenarios import run_scenario
     from models.estimator.pretrained import load_pretrained
-    from service.daemon import _estimate_json
+    from service.daemon import estimate_bytes
     from service.pipeline import ArmPipeline, PipelineConfig, PolicyConfig
 
     js = run_scenario("trocar", duration_s, 1).joint_states
@@ -118,7 +118,7 @@ def bench_arm_thread(duration_s: float = 20.0) -> dict:
             t3 = time.perf_counter()
             log.write(TOPIC_JOINT_STATES, est.stamp_ns, encode_joint_state(
                 "json", est.stamp_ns, js.names, msg.position, msg.velocity, msg.effort))
-            log.write_json(TOPIC_ESTIMATE, est.stamp_ns, _estimate_json(est))
+            log.write(TOPIC_ESTIMATE, est.stamp_ns, estimate_bytes(est))
             log.tick()
             t4 = time.perf_counter()
             for name, a, b in (("decode", t0, t1), ("pipeline", t1, t2), ("encode", t2, t3),

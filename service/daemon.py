@@ -30,14 +30,17 @@ import sys
 import threading
 import time
 from collections import deque
+from functools import partial
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from adapters.mcap_log import TOPIC_ESTIMATE, TOPIC_EVENTS, TOPIC_STATUS, McapLog
+from adapters.mcap_log import (TOPIC_ESTIMATE, TOPIC_EVENTS, TOPIC_STATUS, LogWriterThread,
+                               McapLog, estimate_record)
 from adapters.mcap_session import TOPIC_JOINT_STATES
-from adapters.messages import decode_joint_state, encode_joint_state, encode_wrench
+from adapters.messages import (decode_joint_state, encode_joint_state, encode_wrench,
+                               prepare_encoding)
 from adapters.zenoh_io import open_session
 from models.errors import ConfigError, DataError
 from models.estimator.free_space import FreeSpaceModel
@@ -104,16 +107,11 @@ def _percentiles(values) -> dict[str, float | None]:
             "max": float(a.max())}
 
 
-def _estimate_json(est: Estimate) -> dict[str, Any]:
-    w = est.wrench
-    return {"header": {"stamp": {"sec": est.stamp_ns // 1_000_000_000,
-                                 "nanosec": est.stamp_ns % 1_000_000_000},
-                       "frame_id": "psm_base"},
-            "wrench": {"force": {"x": w[0], "y": w[1], "z": w[2]},
-                       "torque": {"x": w[3], "y": w[4], "z": w[5]}},
-            "free": est.free, "score": min(est.score, 1e9), "model_version": est.model_version,
-            "restarted": est.restarted, "predicted": est.predicted_torque.tolist(),
-            "external": est.external_torque.tolist()}
+def estimate_bytes(est: Estimate, frame_id: str = "psm_base") -> bytes:
+    """The ``/wrenchd/estimate`` log record of one estimate."""
+    return estimate_record(est.stamp_ns, frame_id, est.wrench, est.free, est.score,
+                           est.model_version, est.restarted, est.predicted_torque,
+                           est.external_torque)
 
 
 class ArmRuntime:
@@ -129,6 +127,7 @@ class ArmRuntime:
         self.pipeline = ArmPipeline(cfg.name, free_space, cfg.pipeline, backend)
         if cfg.corr_checkpoint:
             self._load_corr(cfg.corr_checkpoint)
+        prepare_encoding(cfg.encoding)
         self.ring = SampleRing(settings.ring.capacity)
         self.latency_us: deque[float] = deque(maxlen=5000)
         self.rate_hz = 0.0
@@ -136,6 +135,7 @@ class ArmRuntime:
         self.log = McapLog(cfg.name, settings.log, metadata={
             "arm": cfg.name, "settings": settings.model_dump(mode="json"),
             "keys": self.keys})
+        self.log_writer: LogWriterThread | None = None     # set by the daemon before start()
         self._log_problem_reported = False
         self.pub_wrench = session.declare_publisher(self.keys["wrench"])
         self.pub_events = session.declare_publisher(self.keys["events"])
@@ -190,7 +190,11 @@ class ArmRuntime:
             except (TypeError, ValueError):
                 payload = json.dumps(body, default=str).encode()
             self.pub_events.put(payload)
-            self.log.write(TOPIC_EVENTS, max(int(ev.t * 1e9), 0), payload)
+            self._log(TOPIC_EVENTS, max(int(ev.t * 1e9), 0), payload)
+
+    def _log(self, topic: str, stamp_ns: int, payload) -> None:
+        """Hand a record (bytes, or a function making them) to the log writer thread."""
+        self.log_writer.put(self.log, topic, stamp_ns, payload)
 
     def handle(self, arrived_ns: int, payload: bytes) -> None:
         """One payload through decode -> pipeline -> publish -> log."""
@@ -211,11 +215,17 @@ class ArmRuntime:
                                               extra))
             self.latency_us.append((time.perf_counter_ns() - arrived_ns) / 1e3)
             self.last = est
-            names = msg.name if len(msg.name) == len(JOINT_NAMES) else JOINT_NAMES
-            self.log.write(TOPIC_JOINT_STATES, est.stamp_ns, encode_joint_state(
-                "json", est.stamp_ns, names, msg.position, msg.velocity, msg.effort,
-                msg.frame_id))
-            self.log.write_json(TOPIC_ESTIMATE, est.stamp_ns, _estimate_json(est))
+            # Formatting and writing happen on the log writer thread. A JSON input with its
+            # six names is logged as received; anything else is re-encoded there.
+            if enc == "json" and len(msg.name) == len(JOINT_NAMES):
+                record = payload
+            else:
+                names = msg.name if len(msg.name) == len(JOINT_NAMES) else JOINT_NAMES
+                record = partial(encode_joint_state, "json", est.stamp_ns, names, msg.position,
+                                 msg.velocity, msg.effort, msg.frame_id)
+            self._log(TOPIC_JOINT_STATES, est.stamp_ns, record)
+            self._log(TOPIC_ESTIMATE, est.stamp_ns, partial(estimate_bytes, est,
+                                                            self.cfg.frame_id))
         if events:
             self._publish_events(events)
 
@@ -241,9 +251,8 @@ class ArmRuntime:
                 next_status = now + self.settings.status_interval_s
                 status = self.status()
                 stamp = self.last.stamp_ns if self.last is not None else 0
-                self.log.write(TOPIC_STATUS, stamp, json.dumps(status, default=_plain).encode())
+                self._log(TOPIC_STATUS, stamp, json.dumps(status, default=_plain).encode())
                 self._console(status)
-            self.log.tick()
             if self.log.problem and not self._log_problem_reported:
                 self._log_problem_reported = True
                 self._publish_events([Event(time.time(), "log_error",
@@ -275,7 +284,6 @@ class ArmRuntime:
             except Exception:  # noqa: BLE001 - closing must go on
                 pass
         self.pipeline.close()
-        self.log.close()
 
 
 def _robot_command(settings: ServiceSettings, arm: str) -> list[str]:
@@ -302,6 +310,7 @@ class Daemon:
         self.worker: WorkerProcess | None = None
         self.arms: list[ArmRuntime] = []
         self.robots: list[subprocess.Popen] = []
+        self.log_writer: LogWriterThread | None = None
 
     def start(self) -> None:
         s = self.settings
@@ -324,7 +333,9 @@ class Daemon:
         except Exception:
             self.close()
             raise
+        self.log_writer = LogWriterThread([arm.log for arm in self.arms])
         for arm in self.arms:
+            arm.log_writer = self.log_writer
             arm.start()
         if s.robot == "simulated":
             for arm in self.arms:
@@ -367,6 +378,12 @@ class Daemon:
                 arm.thread.join(timeout=10.0)
         for arm in self.arms:
             arm.close()
+        if self.log_writer is not None:            # writes what is queued, finishes the files
+            self.log_writer.close()
+            self.log_writer = None
+        else:
+            for arm in self.arms:
+                arm.log.close()
         if self.worker is not None:
             self.worker.close()
         for robot in self.robots:

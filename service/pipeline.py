@@ -218,6 +218,7 @@ class ArmPipeline:
         self._lim = tuple(np.asarray(v, dtype=float) for v in (
             c.validation.max_abs_position, c.validation.max_abs_velocity,
             c.validation.max_abs_effort))
+        self._bounds = np.stack(self._lim)                      # (3, 6)
         self._adapt_until = -np.inf           # drift-triggered: adapt only after a drift
         self._next_reset: float | None = None
         self._calibration_end: float | None = None
@@ -239,15 +240,19 @@ class ArmPipeline:
         if lengths != (N_JOINTS,) * 3:
             return (f"position, velocity, effort have {lengths[0]}, {lengths[1]}, {lengths[2]} "
                     f"values; the PSM pipeline needs {N_JOINTS} each")
-        for name, v, lim in zip(("position", "velocity", "effort"),
-                                (msg.position, msg.velocity, msg.effort), self._lim):
+        values = (msg.position, msg.velocity, msg.effort)
+        # One comparison for the common case (NaN compares False, so it fails too); the
+        # reason is worked out only for a bad sample.
+        if (np.abs(values) <= self._bounds).all():
+            return None
+        for name, v, lim in zip(("position", "velocity", "effort"), values, self._lim):
             if not np.isfinite(v).all():
                 return f"{name} contains NaN or Inf"
             bad = np.abs(v) > lim
             if bad.any():
                 j = int(np.argmax(bad))
                 return f"{name}[{j + 1}] = {v[j]:.6g} is beyond the bound {lim[j]:g}"
-        return None
+        return "joint state out of bounds"                     # not reached
 
     # -- per sample ---------------------------------------------------------------------
     def process(self, msg: JointStateMsg) -> tuple[Estimate | None, list[Event]]:

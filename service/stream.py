@@ -25,8 +25,18 @@ from adapters.zenoh_io import ZenohConfig, open_session
 
 BLOCK_S = 120.0
 CONTACT_FREE_START_S = 60.0     # the daemon's default calibration_s
+MATCH_TIMEOUT_S = 5.0           # wait this long for a subscriber before the first sample
 
 
+def _wait_for_subscriber(publisher, timeout_s: float) -> bool:
+    """Wait until zenoh reports a matching subscriber (the daemon's route is in place), so
+    the first samples are not published into the void; gives up after ``timeout_s``."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if publisher.matching_status.matching:
+            return True
+        time.sleep(0.01)
+    return False
 
 
 def serve_simulated(scenario: str, seed: int, duration_s: float | None, out_dir: Path,
@@ -63,6 +73,7 @@ def serve_simulated(scenario: str, seed: int, duration_s: float | None, out_dir:
                 js = dataclasses.replace(sim.joint_states, t=sim.joint_states.t + offset)
                 truth = sim.truth
                 if t0_wall is None:                     # the clock starts with the first sample
+                    _wait_for_subscriber(publisher, MATCH_TIMEOUT_S)
                     print(f"wrenchd: simulated {arm} ({scenario}) publishing on '{key}' at "
                           f"{rate_hz:g} Hz, recording to {path}", flush=True)
                     t0_wall = time.monotonic()

@@ -30,6 +30,8 @@ import numpy as np
 from service.adaptation import AdaptationConfig, RoundResult
 
 _BATCH_S = 0.2          # pipelines send their samples at least this often [s]
+_POLL_S = 0.02          # and look for round results at most this often [s]: polling the
+                        # queue costs a select() call, too much to pay on every sample
 
 
 def _run(inbox: mp.Queue, outbox: mp.Queue, configs: dict[str, dict[str, Any]],
@@ -170,7 +172,7 @@ class ProcessAdaptation:
     def __init__(self, worker: WorkerProcess, arm: str) -> None:
         self.worker, self.arm = worker, arm
         self._batch: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
-        self._sent_at = time.monotonic()
+        self._sent_at = self._polled_at = time.monotonic()
         self.errors: list[str] = []
         self._dead_reported = False
 
@@ -194,7 +196,11 @@ class ProcessAdaptation:
         self.worker.send("reset", self.arm)
 
     def tick(self, t: float) -> list[RoundResult]:
-        if time.monotonic() - self._sent_at >= _BATCH_S:
+        now = time.monotonic()
+        if now - self._polled_at < _POLL_S:
+            return []
+        self._polled_at = now
+        if now - self._sent_at >= _BATCH_S:
             self._send_batch()
             if not self.worker.alive and not self._dead_reported:
                 self._dead_reported = True
