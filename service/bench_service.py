@@ -67,6 +67,22 @@ def _rss_mb(pid: int) -> float:
     return total / 1024.0
 
 
+def _cpu_s(pid: int) -> float:
+    """User + system CPU time of one process so far [s] (Linux /proc)."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return float("nan")
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def _children(pid: int) -> list[int]:
+    try:
+        return [int(c) for c in Path(f"/proc/{pid}/task/{pid}/children").read_text().split()]
+    except OSError:
+        return []
+
+
 def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 20.0,
                   warmup_s: float = 3.0, adaptation: bool = True,
                   log: bool = True) -> dict[str, Any]:
@@ -120,8 +136,13 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
         rss: list[tuple[float, float]] = []
         start = time.perf_counter_ns()
         next_rss = 0.0
+        cpu_at: dict[str, float] = {}
+        first = int(warmup_s * rate_hz)
         for i in range(n):
             due = start + i * period_ns
+            if i == first:              # CPU time spent by the daemon and its worker from here
+                cpu_at = {"daemon": _cpu_s(daemon.pid), "worker": sum(
+                    _cpu_s(c) for c in _children(daemon.pid)), "wall": time.monotonic()}
             if (due - start) / 1e9 >= next_rss:
                 rss.append((next_rss, _rss_mb(daemon.pid)))
                 next_rss += 1.0
@@ -131,6 +152,9 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
             for arm in arms:
                 sent_ns[arm][i] = time.perf_counter_ns()
                 pubs[arm].put(payloads[i])
+        cpu = {"daemon": _cpu_s(daemon.pid),
+               "worker": sum(_cpu_s(c) for c in _children(daemon.pid)),
+               "wall": time.monotonic()}
         time.sleep(2.0)                                     # the last wrenches come back
         for arm in arms:
             replies = list(session.get(f"dvrk/{arm}/wrenchd/status", timeout=5.0))
@@ -149,7 +173,6 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
         except subprocess.TimeoutExpired:
             daemon.kill()
     index = {s: i for i, s in enumerate(stamps)}
-    first = int(warmup_s * rate_hz)
     latencies, per_arm = [], {}
     for arm in arms:
         lat, got = [], np.zeros(n, dtype=bool)
@@ -180,7 +203,15 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
               "rss_max_mb": round(float(np.max(after_warmup)), 1),
               "rss_growth_mb": round(after_warmup[-1] - after_warmup[0], 1),
               "rss_every_60s_mb": [round(mb, 1) for t, mb in rss if t % 60 == 0]}
-    return {**memory, "e2e_p50_us": float(np.percentile(pooled, 50)),
+    measured = n - first
+    usage = {"daemon_cpu_us_per_sample": round(
+                 (cpu["daemon"] - cpu_at["daemon"]) * 1e6 / (measured * n_arms), 1),
+             "daemon_cpu_fraction": round((cpu["daemon"] - cpu_at["daemon"])
+                                          / (cpu["wall"] - cpu_at["wall"]), 3),
+             "worker_cpu_fraction": round((cpu["worker"] - cpu_at["worker"])
+                                          / (cpu["wall"] - cpu_at["wall"]), 3),
+             "load_average_1min": round(os.getloadavg()[0], 2)}
+    return {**memory, **usage, "e2e_p50_us": float(np.percentile(pooled, 50)),
             "e2e_p99_us": float(np.percentile(pooled, 99)),
             "dropped": int(sum(a["missing"] + a["ring_dropped"] for a in per_arm.values())),
             "rate_hz": float(np.median([a["rate_hz"] for a in per_arm.values()])),

@@ -31,11 +31,15 @@ import numpy as np
 import pinocchio as pin
 from pydantic import BaseModel, ConfigDict, Field
 
+from scipy.linalg.lapack import dgesv as _gesv
 from scipy.linalg.lapack import dgesvd as _gesvd
 
 from models.errors import DataError
 from models.physics.kinematics import PSMKinematics
 from models.series import N_JOINTS
+
+
+_EYE = np.eye(N_JOINTS)
 
 
 class WrenchMapConfig(BaseModel):
@@ -86,6 +90,7 @@ class WrenchMap:
                  kinematics: PSMKinematics | None = None) -> None:
         self.config = config if config is not None else WrenchMapConfig()
         self.kinematics = kinematics if kinematics is not None else PSMKinematics()
+        self._plain_bound2 = 1.0 / self.config.threshold ** 2
 
     def wrench(self, q: np.ndarray, tau_ext: np.ndarray) -> np.ndarray:
         """One sample: (6,) positions, (6,) external torques -> (6,) wrench [N, N m]."""
@@ -98,8 +103,16 @@ class WrenchMap:
         # the streaming hot path (one pinocchio call, ~1 us instead of ~6 us).
         kin = self.kinematics
         jac = pin.computeFrameJacobian(kin.model, kin.data, q, kin.tip_id, pin.LOCAL_WORLD_ALIGNED)
-        # LAPACK's SVD called directly: numpy.linalg.svd's wrapper costs ~4x the 6x6
-        # decomposition itself (measured 28 vs 14 us).
+        # Fast path, exact: J^-1 by LU. ||J^-1||_F >= ||J^-1||_2 = 1 / s_min, so
+        # ||J^-1||_F <= 1 / threshold proves s_min >= threshold, where the damped map is the
+        # plain inverse w = J^-T tau. Measured ~3x cheaper than the SVD.
+        _, _, inv, info = _gesv(jac, _EYE)
+        if info == 0:
+            flat = inv.ravel()
+            if flat @ flat <= self._plain_bound2:
+                return inv.T @ tau_ext
+        # Near a singularity: damped least squares by SVD (LAPACK called directly: the
+        # numpy.linalg.svd wrapper costs ~4x the 6x6 decomposition itself).
         u, s, vt, info = _gesvd(jac)
         if info != 0:
             raise DataError(f"SVD of the Jacobian did not converge (LAPACK info {info})")
