@@ -1,4 +1,5 @@
-"""The free-motion gate on synthetic residuals: bounds, hysteresis, contact onset, recalibration."""
+"""The free-motion gate on synthetic residuals: bounds, hysteresis, contact onset, the joint
+score, recalibration, the block-fed scale."""
 
 import numpy as np
 import pytest
@@ -36,19 +37,39 @@ def test_a_contact_is_detected_and_not_chopped_by_a_dip():
     free = np.array([d.free for d in out])
     assert free[1000:1500].mean() > 0.99
     onset = 1500 + int(np.argmax(~free[1500:]))
-    # found while the force still ramps: where it crosses enter_sigma x scale (floor 0.1 N)
+    # found while the force still ramps: by the joint score (one joint at z, five at ~1:
+    # sqrt((z^2 + 5) / 6) > joint_sigma) or at the latest where it crosses the peak bound
+    # enter_sigma x scale (floor 0.1 N)
+    z_joint = np.sqrt(cfg.joint_sigma ** 2 * 6 - 5)
+    early = 1500 + int(np.argmax(force[1500:] > z_joint * 0.1))
     crossing = 1500 + int(np.argmax(force[1500:] > cfg.enter_sigma * 0.1))
-    assert crossing - 15 <= onset <= crossing + 15
+    assert early - 15 <= onset <= crossing + cfg.enter_samples + 5
     assert not free[onset:2300].any()                  # one contact, the dip included
     assert free[2500:].mean() > 0.99                   # and it ends
     starts = [d.contact_started for d in out if d.contact_started >= 0]
-    assert min(starts) == onset - 2                    # the index of the first sample above
+    # the index of the first sample of the run above the bound that started the contact
+    assert onset - min(starts) + 1 in (cfg.enter_samples, cfg.joint_samples)
+
+
+def test_a_weak_contact_on_several_joints_is_caught_by_the_joint_score():
+    """Four joints at 2.5 scale units for 1.5 s: under the peak bound, over the joint bound."""
+    r = noise(3000)
+    scale = np.array([0.05, 0.05, 0.1, 0.0025, 0.0025, 0.0025])   # noise RMS (floor on joint 3)
+    r[1500:1800, [1, 3, 4, 5]] += 2.5 * scale[[1, 3, 4, 5]]
+    cfg = GateConfig(warmup_samples=500)
+    out = run(FreeMotionGate(cfg), r)
+    free = np.array([d.free for d in out])
+    assert not free[1540:1800].any()
+    assert free[2100:].mean() > 0.99
+    peak_only = run(FreeMotionGate(GateConfig(warmup_samples=500, joint_sigma=50.0,
+                                              joint_exit_sigma=50.0)), r)
+    assert np.mean([d.free for d in peak_only[1500:1800]]) > 0.9   # the peak alone misses it
 
 
 def test_one_noisy_sample_does_not_start_a_contact():
     r = noise(2000)
     r[1500, 0] += 5.0
-    out = run(FreeMotionGate(GateConfig(warmup_samples=500, enter_samples=3)), r)
+    out = run(FreeMotionGate(GateConfig(warmup_samples=500)), r)
     assert all(d.free for d in out[1000:])
 
 
@@ -74,4 +95,20 @@ def test_bad_configuration_is_refused():
     with pytest.raises(DataError):
         FreeMotionGate(GateConfig(enter_sigma=2.0, exit_sigma=3.0))
     with pytest.raises(DataError):
+        FreeMotionGate(GateConfig(joint_sigma=1.0, joint_exit_sigma=1.5))
+    with pytest.raises(DataError):
         FreeMotionGate(GateConfig(min_std=(0.1,) * 5))
+
+
+def test_the_block_fed_scale_is_the_per_sample_exponential_rms():
+    """Squares handed to river once per learn_block: the same exponential memory."""
+    rng = np.random.default_rng(1)
+    r = rng.normal(0, 0.05, (20000, 6)) * np.linspace(1, 1.8, 20000)[:, None]
+    cfg = GateConfig(warmup_samples=1000, max_growth=10.0, min_std=(1e-4,) * 6,
+                     learn_sigma=1e3, enter_sigma=1e3, joint_sigma=1e3)
+    gate = FreeMotionGate(cfg)
+    run(gate, r)
+    ms = (r[:1000] ** 2).mean(0)
+    for row in r[1000:]:
+        ms = cfg.alpha * row ** 2 + (1 - cfg.alpha) * ms
+    np.testing.assert_allclose(gate.bounds()[1], np.sqrt(ms), rtol=2e-3)
