@@ -5,9 +5,11 @@ One zenoh session per daemon; per arm:
 * a subscriber on ``measured_js`` whose callback only stamps the payload with its arrival time
   and puts it in a bounded ring (no decoding, inference or training in a zenoh callback); a
   full ring drops its oldest sample and counts it (``dropped``);
-* an estimation thread that drains the ring through the arm's :class:`ArmPipeline`
-  (decode -> validate -> estimate -> gate), publishes the wrench and events, and logs inputs,
-  estimates, events and a status snapshot to the arm's :class:`McapLog`;
+* the daemon's estimation thread (one for all arms, interleaving them) drains the ring
+  through the arm's :class:`ArmPipeline` (decode -> validate -> estimate -> gate), publishes
+  the wrench and events, and hands inputs, estimates, events and a status snapshot to the log
+  writer thread, which formats and writes them to the arm's :class:`McapLog` (flushed every
+  second, rotated);
 * a queryable ``status`` (JSON: model version, rates, latency percentiles, counters, gate and
   drift state) and a liveliness token ``alive``.
 
@@ -17,7 +19,7 @@ separate process publishing on each arm's ``measured_js`` (``wrenchd robot``), r
 ground truth beside the logs.
 
 SIGINT/SIGTERM stop cleanly: subscribers are undeclared first (no callback runs after), the
-estimation threads finish what is queued, the worker stops, the logs are finished, the
+estimation thread finishes what is queued, the worker stops, the logs are finished, the
 session is closed.
 """
 
@@ -68,13 +70,16 @@ def load_free_space(spec: str) -> FreeSpaceModel:
 
 
 class SampleRing:
-    """Bounded FIFO between the zenoh callback and the estimation thread; drops the oldest."""
+    """Bounded FIFO between the zenoh callback and the estimation thread; drops the oldest.
 
-    def __init__(self, capacity: int) -> None:
+    ``wake`` is set on every put; rings of one daemon share it (one estimation thread).
+    """
+
+    def __init__(self, capacity: int, wake: threading.Event | None = None) -> None:
         self._items: deque[tuple[int, bytes]] = deque()
         self._capacity = capacity
         self._lock = threading.Lock()
-        self.wake = threading.Event()
+        self.wake = wake if wake is not None else threading.Event()
         self.dropped = 0
 
     def put(self, item: tuple[int, bytes]) -> None:
@@ -118,9 +123,9 @@ class ArmRuntime:
     """One arm's subscriber, ring, estimation thread, publishers, queryable, token and log."""
 
     def __init__(self, cfg: ArmConfig, settings: ServiceSettings, session,
-                 worker: WorkerProcess | None, stop: threading.Event,
+                 worker: WorkerProcess | None, wake: threading.Event,
                  free_space: FreeSpaceModel) -> None:
-        self.cfg, self.settings, self.stop = cfg, settings, stop
+        self.cfg, self.settings = cfg, settings
         self.name = cfg.name
         self.keys = cfg.keys.resolve(settings.prefix, cfg.name)
         backend = (ProcessAdaptation(worker, cfg.name) if worker is not None else None)
@@ -128,7 +133,7 @@ class ArmRuntime:
         if cfg.corr_checkpoint:
             self._load_corr(cfg.corr_checkpoint)
         prepare_encoding(cfg.encoding)
-        self.ring = SampleRing(settings.ring.capacity)
+        self.ring = SampleRing(settings.ring.capacity, wake)
         self.latency_us: deque[float] = deque(maxlen=5000)
         self.rate_hz = 0.0
         self.last: Estimate | None = None
@@ -142,7 +147,9 @@ class ArmRuntime:
         self.queryable = session.declare_queryable(self.keys["status"], self._on_query)
         self.token = session.liveliness().declare_token(self.keys["alive"])
         self.sub = session.declare_subscriber(self.keys["measured_js"], self._on_sample)
-        self.thread = threading.Thread(target=self._run, name=f"wrenchd-{cfg.name}", daemon=True)
+        now = time.monotonic()
+        self._next_status = now + settings.status_interval_s
+        self._count_at, self._count_t = 0, now
 
     def _load_corr(self, path: str) -> None:
         from models.estimator.checkpoint import load_checkpoint
@@ -178,10 +185,7 @@ class ArmRuntime:
                                         else None)
         return s
 
-    # -- estimation thread ----------------------------------------------------------------
-    def start(self) -> None:
-        self.thread.start()
-
+    # -- on the estimation thread --------------------------------------------------------
     def _publish_events(self, events: list[Event]) -> None:
         for ev in events:
             body = ev.to_json()
@@ -229,38 +233,31 @@ class ArmRuntime:
         if events:
             self._publish_events(events)
 
-    def _run(self) -> None:
-        next_status = time.monotonic() + self.settings.status_interval_s
-        count_at, count_t = 0, time.monotonic()
-        while True:
-            stopping = self.stop.is_set()
-            self.ring.wake.wait(0.05)
-            self.ring.wake.clear()
-            for arrived_ns, payload in self.ring.drain():
-                try:
-                    self.handle(arrived_ns, payload)
-                except Exception as exc:  # noqa: BLE001 - never let one sample kill the arm
-                    ev = self.pipeline.reject(time.time(), "internal",
-                                              f"{type(exc).__name__}: {exc}")
-                    self._publish_events([ev])
-            now = time.monotonic()
-            if now >= next_status:
-                est = self.pipeline.counters.estimated
-                self.rate_hz = (est - count_at) / max(now - count_t, 1e-9)
-                count_at, count_t = est, now
-                next_status = now + self.settings.status_interval_s
-                status = self.status()
-                stamp = self.last.stamp_ns if self.last is not None else 0
-                self._log(TOPIC_STATUS, stamp, json.dumps(status, default=_plain).encode())
-                self._console(status)
-            if self.log.problem and not self._log_problem_reported:
-                self._log_problem_reported = True
-                self._publish_events([Event(time.time(), "log_error",
-                                            {"arm": self.name, "error": self.log.problem})])
-            elif self.log.problem is None:                # a fresh file is open again
-                self._log_problem_reported = False
-            if stopping:
-                break
+    def handle_safe(self, arrived_ns: int, payload: bytes) -> None:
+        """:meth:`handle`, turning any exception into a counted ``internal`` error event."""
+        try:
+            self.handle(arrived_ns, payload)
+        except Exception as exc:  # noqa: BLE001 - never let one sample kill the arm
+            ev = self.pipeline.reject(time.time(), "internal", f"{type(exc).__name__}: {exc}")
+            self._publish_events([ev])
+
+    def housekeeping(self, now: float) -> None:
+        """Once in a while: rate, status snapshot to the log and console, log problems."""
+        if now >= self._next_status:
+            est = self.pipeline.counters.estimated
+            self.rate_hz = (est - self._count_at) / max(now - self._count_t, 1e-9)
+            self._count_at, self._count_t = est, now
+            self._next_status = now + self.settings.status_interval_s
+            status = self.status()
+            stamp = self.last.stamp_ns if self.last is not None else 0
+            self._log(TOPIC_STATUS, stamp, json.dumps(status, default=_plain).encode())
+            self._console(status)
+        if self.log.problem and not self._log_problem_reported:
+            self._log_problem_reported = True
+            self._publish_events([Event(time.time(), "log_error",
+                                        {"arm": self.name, "error": self.log.problem})])
+        elif self.log.problem is None:                # a fresh file is open again
+            self._log_problem_reported = False
 
     def _console(self, status: dict[str, Any]) -> None:
         est = self.last
@@ -306,6 +303,8 @@ class Daemon:
     def __init__(self, settings: ServiceSettings) -> None:
         self.settings = settings
         self.stop = threading.Event()
+        self.wake = threading.Event()               # set by every arm's zenoh callback
+        self.thread: threading.Thread | None = None
         self.session = None
         self.worker: WorkerProcess | None = None
         self.arms: list[ArmRuntime] = []
@@ -328,7 +327,7 @@ class Daemon:
         try:
             for cfg in s.arms:
                 worker = self.worker if cfg.name in adapt else None
-                self.arms.append(ArmRuntime(cfg, s, self.session, worker, self.stop,
+                self.arms.append(ArmRuntime(cfg, s, self.session, worker, self.wake,
                                             self.models[cfg.name]))
         except Exception:
             self.close()
@@ -336,7 +335,9 @@ class Daemon:
         self.log_writer = LogWriterThread([arm.log for arm in self.arms])
         for arm in self.arms:
             arm.log_writer = self.log_writer
-            arm.start()
+        self.thread = threading.Thread(target=self._estimate, name="wrenchd-estimate",
+                                       daemon=True)
+        self.thread.start()
         if s.robot == "simulated":
             for arm in self.arms:
                 self.robots.append(subprocess.Popen(_robot_command(s, arm.name)))
@@ -344,6 +345,31 @@ class Daemon:
             print(f"wrenchd: {arm.name} ({arm.cfg.encoding}) listening on "
                   f"'{arm.keys['measured_js']}', publishing wrenches on '{arm.keys['wrench']}', "
                   f"logging to {s.log.directory}", flush=True)
+
+    def _estimate(self) -> None:
+        """The estimation thread: every arm's queued samples, interleaved across arms in
+        arrival order per arm, then each arm's housekeeping; until stopped (what is queued
+        at the stop is still estimated).
+
+        One thread for all arms, not one each: estimation threads of one process would only
+        take turns on the GIL, and each switch costs; interleaving keeps arms fair.
+        """
+        arms = self.arms
+        while True:
+            stopping = self.stop.is_set()
+            self.wake.wait(0.05)
+            self.wake.clear()
+            queued = [(arm, arm.ring.drain()) for arm in arms]
+            depth = max((len(items) for _, items in queued), default=0)
+            for k in range(depth):             # samples that arrive meanwhile set ``wake``
+                for arm, items in queued:
+                    if k < len(items):
+                        arm.handle_safe(*items[k])
+            now = time.monotonic()
+            for arm in arms:
+                arm.housekeeping(now)
+            if stopping:
+                break
 
     def run(self, duration_s: float | None = None) -> int:
         """Start, serve until SIGINT/SIGTERM or ``duration_s``, stop cleanly. Returns 0."""
@@ -373,9 +399,9 @@ class Daemon:
                 arm.sub.undeclare()          # no callback after this point
             except Exception:  # noqa: BLE001
                 pass
-        for arm in self.arms:
-            if arm.thread.is_alive():
-                arm.thread.join(timeout=10.0)
+        self.wake.set()
+        if self.thread is not None and self.thread.is_alive():
+            self.thread.join(timeout=10.0)
         for arm in self.arms:
             arm.close()
         if self.log_writer is not None:            # writes what is queued, finishes the files
