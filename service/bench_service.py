@@ -203,9 +203,9 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
               "rss_max_mb": round(float(np.max(after_warmup)), 1),
               "rss_growth_mb": round(after_warmup[-1] - after_warmup[0], 1),
               "rss_every_60s_mb": [round(mb, 1) for t, mb in rss if t % 60 == 0]}
-    measured = n - first
+    estimated = sum(a["rate_hz"] for a in per_arm.values()) * duration_s   # after warm-up
     usage = {"daemon_cpu_us_per_sample": round(
-                 (cpu["daemon"] - cpu_at["daemon"]) * 1e6 / (measured * n_arms), 1),
+                 (cpu["daemon"] - cpu_at["daemon"]) * 1e6 / max(estimated, 1.0), 1),
              "daemon_cpu_fraction": round((cpu["daemon"] - cpu_at["daemon"])
                                           / (cpu["wall"] - cpu_at["wall"]), 3),
              "worker_cpu_fraction": round((cpu["worker"] - cpu_at["worker"])

@@ -318,7 +318,10 @@ class Daemon:
         sys.setswitchinterval(SWITCH_INTERVAL_S)
         adapt = {a.name: a.pipeline.adaptation for a in s.arms
                  if a.pipeline.adaptation.enabled and a.pipeline.policy.name != "frozen"}
-        self.models = {a.name: load_free_space(a.model) for a in s.arms}
+        loaded: dict[str, FreeSpaceModel] = {}           # one copy of each distinct model
+        for spec in {a.model for a in s.arms}:
+            loaded[spec] = load_free_space(spec)
+        self.models = {a.name: loaded[a.model] for a in s.arms}
         if adapt:
             frac = min(c.max_cpu_fraction for c in adapt.values())
             norms = {name: normalisation_of(self.models[name]) for name in adapt}
@@ -332,6 +335,13 @@ class Daemon:
         except Exception:
             self.close()
             raise
+        first: dict[int, ArmRuntime] = {}
+        for arm in self.arms:                           # arms of one model share its weights
+            model = id(self.models[arm.name])
+            if model in first:
+                arm.pipeline.estimator.share_step1(first[model].pipeline.estimator)
+            else:
+                first[model] = arm
         self.log_writer = LogWriterThread([arm.log for arm in self.arms])
         for arm in self.arms:
             arm.log_writer = self.log_writer

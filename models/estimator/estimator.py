@@ -114,6 +114,16 @@ class TwoStepEstimator:
         self._window = HistoryWindow(self.correction.window) if self._corr is not None else None
         self.reset_state()
 
+    def share_step1(self, other: TwoStepEstimator) -> None:
+        """Use ``other``'s step-1 kernel (read-only weights) instead of an own copy.
+
+        Arms of one daemon that run the same step-1 model then stream through one copy of
+        its weights (about 1 MB), which stays in cache; each estimator keeps its own state.
+        """
+        if other.free_space is not self.free_space or other.mode != self.mode:
+            raise ConfigError("share_step1 needs estimators of the same step-1 model and mode")
+        self._recurrent = other._recurrent
+
     def swap_correction(self, correction: Corr) -> None:
         """Replace the ``Corr`` weights between two samples without restarting the state.
 

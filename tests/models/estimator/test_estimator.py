@@ -83,3 +83,21 @@ def test_rejects_bad_input_and_mismatched_xfer(models_f64):
     with pytest.raises(ConfigError):
         TwoStepEstimator(fs, "corr")
 
+
+
+def test_shared_step1_kernel_keeps_streams_apart(models_f64, free_space_session):
+    """Two estimators streaming different data through one shared step-1 kernel, interleaved,
+    give what each gives alone (the kernel holds weights only; each keeps its own state)."""
+    fs, corr, xfer = models_f64
+    js = free_space_session.joint_states.slice(0, 120)
+    other = free_space_session.joint_states.slice(200, 320)
+    alone = _stream(TwoStepEstimator(fs, corr), js)
+    a, b = TwoStepEstimator(fs, corr), TwoStepEstimator(fs, corr)
+    b.share_step1(a)
+    out = []
+    for i in range(len(js)):
+        out.append(a.step_one(js.t[i], js.position[i], js.velocity[i], js.effort[i]).wrench)
+        b.step_one(other.t[i], other.position[i], other.velocity[i], other.effort[i])
+    np.testing.assert_array_equal(np.array(out), alone["wrench"])
+    with pytest.raises(ConfigError):
+        TwoStepEstimator(fs, xfer).share_step1(a)
