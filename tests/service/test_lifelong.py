@@ -4,13 +4,17 @@
 after it, the pressure steps 12 -> 20 mmHg at 88 s. Replayed through the daemon's pipeline
 (gated policy, inline adaptation in sample time) and with the ``frozen`` policy.
 
-The daemon issue asks for more than this test checks, and wrenchd does not meet it yet
-(measured, see the issue note): the free-motion error 60 s after the change is back within
-10 % of its level before the change (measured: ~1.5x), and *no* contact sample ever trains
-(measured: 0 to ~0.5 % of the offered samples, from contacts whose joint-torque signature
-stays under the gate's bound). What this test holds the pipeline to: adaptation makes the
-free-motion error after the change clearly lower than the frozen net's, the change is real
-(the frozen error grows), and contamination stays under 1 % of the offered samples.
+Issue 4 asks for two things. **No contact sample ever trains**: met here (asserted: zero
+offered samples truly in contact; before the gate's joint score, 131 of 26 183 were, all from
+one 2.8 N grasp the peak score never saw; also 0 on seed 4). **The free-motion error 60 s after
+the change is back within 10 % of its level before it**: NOT met (measured: post / pre =
+1.22 on this session, 1.26 on seed 4). What limits it, measured: the correction net tracks
+the recent trajectory, and the 2.5 s delay line that keeps contact onsets out of training
+makes its data stale; with a perfect (truth) gate the ratio is 1.16 at 2.5 s delay, 1.13 at
+1.5 s, 1.05 at 0.5 s and 1.00 with none, while the gate finds contacts 0.2-1.1 s after they
+start. So this test holds the pipeline to what it reaches: adaptation makes the error after
+the change clearly lower than the frozen net's, the change is real (the frozen error grows),
+and the ratio stays under 1.35.
 """
 
 import numpy as np
@@ -55,8 +59,9 @@ def test_gated_adaptation_recovers_from_the_insufflation_change(session):
     assert post < 0.7 * f_post, (post, f_post)             # adaptation pays after the change
     assert pre < 0.7 * f_pre, (pre, f_pre)                 # and before it (calibration)
     assert gated.status["counters"]["swaps"] > 0
+    assert post < 1.35 * pre, (pre, post)                  # issue: 1.10 (not met, see above)
 
     idx = np.searchsorted(session.joint_states.t, gated.offered_t)
     np.testing.assert_allclose(session.joint_states.t[idx], gated.offered_t, atol=1e-9)
     assert len(idx) > 10_000
-    assert session.truth.in_contact[idx].mean() < 0.01
+    assert not session.truth.in_contact[idx].any(), int(session.truth.in_contact[idx].sum())
