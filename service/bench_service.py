@@ -14,6 +14,7 @@ second per arm, median over arms), and per-arm details.
 
 from __future__ import annotations
 
+import gc
 import json
 import os
 import signal
@@ -133,6 +134,11 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
         # Pace by sleeping, never by spinning: a spinning publisher holds the GIL and delays
         # this process's own subscriber callbacks, which would be measured as daemon latency.
         sys.setswitchinterval(1e-4)
+        # This process's own GC pauses would delay its subscriber callbacks and be measured as
+        # daemon latency: freeze what is loaded and collect nothing while measuring.
+        gc.collect()
+        gc.freeze()
+        gc.disable()
         rss: list[tuple[float, float]] = []
         start = time.perf_counter_ns()
         next_rss = 0.0
@@ -156,6 +162,7 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
                "worker": sum(_cpu_s(c) for c in _children(daemon.pid)),
                "wall": time.monotonic()}
         time.sleep(2.0)                                     # the last wrenches come back
+        gc.enable()
         for arm in arms:
             replies = list(session.get(f"dvrk/{arm}/wrenchd/status", timeout=5.0))
             ok = [r.ok for r in replies if r.ok is not None]
