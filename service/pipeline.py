@@ -77,6 +77,11 @@ class PolicyConfig(BaseModel):
     name: Literal["gated", "ungated", "frozen", "drift-triggered", "periodic-reset"] = "gated"
     release_delay_s: float = Field(default=2.5, ge=0.0,
                                    description="a free sample waits this long for a contact")
+    onset_margin_s: float = Field(
+        default=0.5, ge=0.0,
+        description="when a contact is found, the waiting samples from this long before the "
+                    "gate's onset on are dropped (the force builds up under the bound first); "
+                    "older ones go on waiting")
     reset_every_s: float = Field(default=120.0, gt=0.0,
                                  description="periodic-reset: back to the initial net [s]")
 
@@ -214,6 +219,7 @@ class ArmPipeline:
         self._last_ns: int | None = None
         self._behind = 0                      # consecutive samples stamped before the last
         self._pending: deque[tuple[float, np.ndarray, np.ndarray, np.ndarray]] = deque()
+        self._times: deque[float] = deque(maxlen=8192)   # times of the last estimated samples
         self._index = 0
         self._lim = tuple(np.asarray(v, dtype=float) for v in (
             c.validation.max_abs_position, c.validation.max_abs_velocity,
@@ -290,6 +296,7 @@ class ArmPipeline:
             return None, events + [self._error(t, "non_finite_output", "estimate not finite")]
         index = self._index
         self._index += 1
+        self._times.append(t)
         self.counters.estimated += 1
         decision = self.gate.update(index, t, out.external_torque)
         calibrating = self._calibrating(t, events)
@@ -307,7 +314,8 @@ class ArmPipeline:
                                              "level": self.drift.level(out.external_torque)}))
             if self.backend is not None:
                 self.backend.drift(t)
-        self._offer(t, out, msg.effort, decision.free, events, calibrating, decision.trainable)
+        self._offer(t, out, msg.effort, decision.free, events, calibrating, decision.trainable,
+                    decision.contact_started)
         events.extend(self._adapt(t))
         est = Estimate(index, msg.stamp_ns, t, msg.position, msg.velocity, msg.effort,
                        out.wrench, out.predicted_torque, out.external_torque, decision.free,
@@ -347,7 +355,8 @@ class ArmPipeline:
         self._was_contact = now
 
     def _offer(self, t: float, out, effort: np.ndarray, free: bool, events: list[Event],
-               calibrating: bool = False, trainable: bool = True) -> None:
+               calibrating: bool = False, trainable: bool = True,
+               contact_started: int = -1) -> None:
         if self.backend is None or out.window is None:
             return
         if self.policy == "drift-triggered" and t > self._adapt_until and not calibrating:
@@ -359,9 +368,7 @@ class ArmPipeline:
                 self.on_offer(np.array([t]))
             return
         if not free:
-            if self._pending:
-                self.counters.discarded_onsets += len(self._pending)
-                self._pending.clear()
+            self._drop_onset(contact_started)
             return
         if trainable:                   # a free but borderline sample is skipped, not trusted
             self._pending.append((t, out.window, out.step1_torque, effort.copy()))
@@ -375,6 +382,22 @@ class ArmPipeline:
                                np.stack([r[3] for r in ready]))
             if self.on_offer is not None:
                 self.on_offer(np.array([r[0] for r in ready]))
+
+    def _drop_onset(self, contact_started: int) -> None:
+        """Drop the waiting samples that may belong to the contact the gate is in: from
+        ``onset_margin_s`` before its onset on (all of them when the onset is unknown)."""
+        pending = self._pending
+        if not pending:
+            return
+        first = self._index - len(self._times)            # index of the oldest time kept
+        if contact_started < first:
+            cutoff = -np.inf
+        else:
+            cutoff = self._times[contact_started - first] - self.config.policy.onset_margin_s
+        n = len(pending)
+        while pending and pending[-1][0] >= cutoff:
+            pending.pop()
+        self.counters.discarded_onsets += n - len(pending)
 
     def _adapt(self, t: float) -> list[Event]:
         if self.backend is None:
