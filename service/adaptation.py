@@ -154,6 +154,11 @@ def corr_from_numpy(config: CorrConfig, state: dict[str, np.ndarray]) -> Corr:
     return corr.eval()
 
 
+def _rmse_mean(pred: np.ndarray, target: np.ndarray) -> float:
+    """Mean over joints of the RMSE of (B, 6) predictions (torque-std units)."""
+    return float(np.mean(np.sqrt(np.mean((pred - target) ** 2, axis=0))))
+
+
 class Adapter:
     """Replay buffer, fine-tuning rounds, validation and versions (see the module docstring)."""
 
@@ -284,24 +289,28 @@ class Adapter:
             self.corr = zero_corr(self.corr_config, x.numpy(), s.numpy(), self.config.seed,
                                   self.normalisation)
         holdout = np.stack(self.holdout) if len(self.holdout) >= 16 else None
-        candidate = copy.deepcopy(self.corr)
-        scaling = self._scaling(candidate)
+        scaling = self._scaling(self.corr)
         # Adam as torch.optim.Adam, on NumPy (models/estimator/corr_finetune.py: ~10x faster
-        # per step at this size, where torch's dispatch costs more than the arithmetic).
-        tuner = CorrFineTuner(candidate.net, lr=c.lr, weight_decay=c.weight_decay)
+        # per step at this size, where torch's dispatch costs more than the arithmetic). The
+        # tuner starts from a copy of the serving net's weights.
+        tuner = CorrFineTuner(self.corr.net, lr=c.lr, weight_decay=c.weight_decay)
+        if holdout is not None:
+            h_inp, h_target = self._net_io(holdout, scaling, tensors=False)
+            before = _rmse_mean(tuner.forward(h_inp), h_target)
         for _ in range(c.round_steps):
             tuner.step(*self._net_io(self._batch(c.batch_size), scaling, tensors=False))
-        tuner.write_to(candidate.net)
-        candidate.eval()
         self.rounds += 1
         n_train = self.recent.n + self.reservoir.n
         if holdout is None:
             return RoundResult(t, False, self.version, float("nan"), float("nan"), n_train, 0,
                                eager)
-        before, after = self.score(self.corr, holdout), self.score(candidate, holdout)
+        after = _rmse_mean(tuner.forward(h_inp), h_target)
         accepted = after < before * (1.0 - c.min_improvement)
+        candidate = None
         if accepted:
-            self.corr = candidate
+            candidate = copy.deepcopy(self.corr)
+            tuner.write_to(candidate.net)
+            self.corr = candidate.eval()
             self.version += 1
             self.accepted += 1
         return RoundResult(t, accepted, self.version, before, after, n_train, len(holdout),

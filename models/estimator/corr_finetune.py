@@ -43,20 +43,45 @@ class CorrFineTuner:
                 or layers[0].bias is None or layers[2].bias is None):
             raise ConfigError("CorrFineTuner needs Sequential(Linear, ReLU, Linear) with biases")
         first, last = layers[0], layers[2]
-        f32 = lambda t: t.detach().cpu().numpy().astype(np.float32, copy=True)  # noqa: E731
-        # weights stored as (in, out) for x @ W
-        self.params = [np.ascontiguousarray(f32(first.weight).T), f32(first.bias),
-                       np.ascontiguousarray(f32(last.weight).T), f32(last.bias)]
-        self.m = [np.zeros_like(p) for p in self.params]
-        self.v = [np.zeros_like(p) for p in self.params]
+        n_in, hidden, n_out = first.in_features, first.out_features, last.out_features
+        shapes = [(n_in, hidden), (hidden,), (hidden, n_out), (n_out,)]
+        sizes = [int(np.prod(sh)) for sh in shapes]
+        # All parameters (and their gradients and moments) are views of one flat buffer each,
+        # so an Adam update is a few operations on one array, not a few per tensor.
+        self.flat = np.zeros(sum(sizes), dtype=np.float32)
+        self.grad = np.zeros_like(self.flat)
+        self.m = np.zeros_like(self.flat)
+        self.v = np.zeros_like(self.flat)
+        offsets = np.cumsum([0] + sizes)
+        self.params = [self.flat[a:b].reshape(sh) for a, b, sh in
+                       zip(offsets[:-1], offsets[1:], shapes)]
+        self.grads = [self.grad[a:b].reshape(sh) for a, b, sh in
+                      zip(offsets[:-1], offsets[1:], shapes)]
+        to_np = lambda t: t.detach().cpu().numpy()  # noqa: E731
+        self.params[0][...] = to_np(first.weight).T          # stored (in, out) for x @ W
+        self.params[1][...] = to_np(first.bias)
+        self.params[2][...] = to_np(last.weight).T
+        self.params[3][...] = to_np(last.bias)
         self.lr, self.weight_decay = float(lr), float(weight_decay)
         self.beta1, self.beta2 = betas
         self.eps = float(eps)
         self.steps = 0
 
-    def gradients(self, inp: np.ndarray, target: np.ndarray) -> tuple[float, list[np.ndarray]]:
-        """Loss and its gradients w.r.t. ``params`` for (B, n_in) inputs, (B, n_out) targets."""
+    def forward(self, inp: np.ndarray) -> np.ndarray:
+        """The net's output for (B, n_in) inputs."""
         w1, b1, w2, b2 = self.params
+        h = inp @ w1
+        h += b1
+        np.maximum(h, 0.0, out=h)
+        out = h @ w2
+        out += b2
+        return out
+
+    def gradients(self, inp: np.ndarray, target: np.ndarray) -> tuple[float, list[np.ndarray]]:
+        """Loss and its gradients w.r.t. ``params`` (written into ``grads``) for (B, n_in)
+        inputs and (B, n_out) targets."""
+        w1, b1, w2, b2 = self.params
+        g_w1, g_b1, g_w2, g_b2 = self.grads
         z = inp @ w1
         z += b1
         h = np.maximum(z, 0.0)
@@ -65,34 +90,37 @@ class CorrFineTuner:
         err = out - target
         loss = float(np.mean(err * err))
         d_out = err * np.float32(2.0 / err.size)
-        g_w2 = h.T @ d_out
-        g_b2 = d_out.sum(axis=0)
+        np.matmul(h.T, d_out, out=g_w2)
+        np.sum(d_out, axis=0, out=g_b2)
         d_h = d_out @ w2.T
         d_h *= z > 0.0
-        g_w1 = inp.T @ d_h
-        g_b1 = d_h.sum(axis=0)
-        return loss, [g_w1, g_b1, g_w2, g_b2]
+        np.matmul(inp.T, d_h, out=g_w1)
+        np.sum(d_h, axis=0, out=g_b1)
+        return loss, self.grads
 
     def step(self, inp: np.ndarray, target: np.ndarray) -> float:
         """One Adam step on a mini-batch; returns the loss before the step."""
         inp = np.asarray(inp, dtype=np.float32)
         target = np.asarray(target, dtype=np.float32)
-        loss, grads = self.gradients(inp, target)
+        loss, _ = self.gradients(inp, target)
         self.steps += 1
         b1, b2 = self.beta1, self.beta2
         step_size = self.lr / (1.0 - b1 ** self.steps)
         root_bc2 = math.sqrt(1.0 - b2 ** self.steps)
-        for p, g, m, v in zip(self.params, grads, self.m, self.v):
-            if self.weight_decay:
-                g += self.weight_decay * p
-            m *= b1
-            m += (1.0 - b1) * g
-            v *= b2
-            v += (1.0 - b2) * (g * g)
-            denom = np.sqrt(v)
-            denom /= root_bc2
-            denom += self.eps
-            p -= step_size * (m / denom)
+        g, m, v = self.grad, self.m, self.v
+        if self.weight_decay:
+            g += np.float32(self.weight_decay) * self.flat
+        m *= b1
+        m += (1.0 - b1) * g
+        v *= b2
+        g *= g
+        v += (1.0 - b2) * g
+        denom = np.sqrt(v)
+        denom /= root_bc2
+        denom += self.eps
+        np.divide(m, denom, out=denom)
+        denom *= step_size
+        self.flat -= denom
         return loss
 
     def write_to(self, net: nn.Sequential) -> None:
