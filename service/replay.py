@@ -30,8 +30,10 @@ from models.estimator.features import segment_starts
 from models.estimator.free_space import FreeSpaceModel
 from models.estimator.wrench import damped_wrench
 from models.series import N_JOINTS, Session
+from service.adaptation import normalisation_of
 from service.pipeline import ArmPipeline, Event, PipelineConfig
 from service.replay_source import joint_state_messages
+from service.replay_worker import WorkerAdaptation
 
 
 class BatchedEstimator(TwoStepEstimator):
@@ -88,9 +90,22 @@ class BatchedEstimator(TwoStepEstimator):
             return np.zeros((0, N_JOINTS, N_JOINTS))
         jac = self.wrench_map.kinematics.jacobian(q, frame="hybrid")         # (N, 6, 6)
         cfg = self.wrench_map.config
-        # the map is linear in the torque: its columns are the wrenches of unit torques
-        unit = damped_wrench(jac[:, None], np.eye(N_JOINTS), cfg.threshold, cfg.max_damping)
-        return np.ascontiguousarray(unit.transpose(0, 2, 1))
+        # As WrenchMap.wrench: where ||J^-1||_F <= 1 / threshold (so s_min >= threshold) the
+        # map is J^-T exactly; elsewhere the damped one, whose columns are the wrenches of unit
+        # torques (the map is linear in the torque).
+        gains = np.empty_like(jac)
+        plain = np.zeros(len(q), dtype=bool)
+        ok = np.abs(np.linalg.det(jac)) > 0.0
+        if ok.any():
+            inv = np.linalg.inv(jac[ok])
+            gains[ok] = inv.transpose(0, 2, 1)
+            plain[ok] = np.einsum("nij,nij->n", inv, inv) <= 1.0 / cfg.threshold ** 2
+        damped = ~plain
+        if damped.any():
+            unit = damped_wrench(jac[damped][:, None], np.eye(N_JOINTS), cfg.threshold,
+                                 cfg.max_damping)
+            gains[damped] = unit.transpose(0, 2, 1)
+        return np.ascontiguousarray(gains)
 
     def _compute_block(self, i: int) -> None:
         w = self.correction.window
@@ -169,7 +184,7 @@ def _accepted(pipeline: ArmPipeline, js) -> np.ndarray:
 
 def replay(session: Session, free_space: FreeSpaceModel, config: PipelineConfig | None = None,
            *, policy: str = "", batched: bool = True, arm: str = "PSM1", block: int = 256,
-           step1: str = "kernel",
+           step1: str = "torch", adaptation: str = "worker", result_delay_s: float = 1.0,
            pipeline_hook: Callable[[ArmPipeline], None] | None = None) -> ReplayResult:
     """Run ``session`` through a fresh :class:`ArmPipeline` in simulated time.
 
@@ -179,13 +194,36 @@ def replay(session: Session, free_space: FreeSpaceModel, config: PipelineConfig 
         config: the pipeline config (a policy's, :mod:`service.policies`).
         policy: the policy's name, recorded in the result.
         batched: use :class:`BatchedEstimator` (same numbers, several times faster).
+        step1: the batched step 1, ``"torch"`` or ``"kernel"`` (see :class:`BatchedEstimator`).
+        adaptation: ``"worker"``: rounds in a forked process, their nets serving from
+            ``result_delay_s`` of sample time after they fell due
+            (:class:`~service.replay_worker.WorkerAdaptation`); ``"inline"``: each round at
+            its sample, serving from the next one.
+        result_delay_s: see ``adaptation`` [s].
         pipeline_hook: called with the pipeline before the first sample (tests, tracing).
     Returns:
         the :class:`ReplayResult`.
     """
     config = config if config is not None else PipelineConfig()
+    if adaptation not in ("worker", "inline"):
+        raise ConfigError(f"adaptation must be 'worker' or 'inline', got {adaptation!r}")
     msgs = joint_state_messages(session.joint_states)
-    pipeline = ArmPipeline(arm, free_space, config)
+    backend = None
+    if (adaptation == "worker" and config.adaptation.enabled
+            and config.policy.name != "frozen"):
+        backend = WorkerAdaptation(config.adaptation, normalisation_of(free_space),
+                                   result_delay_s)
+    pipeline = ArmPipeline(arm, free_space, config, backend)
+    try:
+        return _run(pipeline, session, msgs, config, policy, batched, block, step1,
+                    pipeline_hook, adaptation, result_delay_s)
+    finally:
+        pipeline.close()
+
+
+def _run(pipeline: ArmPipeline, session: Session, msgs, config: PipelineConfig, policy: str,
+         batched: bool, block: int, step1: str, pipeline_hook, adaptation: str,
+         result_delay_s: float) -> ReplayResult:
     offered: list[np.ndarray] = []
     pipeline.on_offer = offered.append
     start = time.perf_counter()
@@ -218,7 +256,6 @@ def replay(session: Session, free_space: FreeSpaceModel, config: PipelineConfig 
         k += 1
     wall = time.perf_counter() - start
     status = pipeline.status()
-    pipeline.close()
     return ReplayResult(
         t=stamp[:k] / 1e9, stamp_ns=stamp[:k], sample=sample[:k], wrench=wrench[:k],
         external=external[:k], predicted=predicted[:k], free=free[:k], score=score[:k],
@@ -226,4 +263,7 @@ def replay(session: Session, free_space: FreeSpaceModel, config: PipelineConfig 
         offered_t=np.concatenate(offered) if offered else np.zeros(0),
         status=status, config=config.model_dump(mode="json"),
         policy=policy or config.policy.name, wall_s=wall, samples_in=n,
-        meta={"batched": batched, "step1": step1 if batched else "stream", "source": session.metadata.get("source")})
+        meta={"batched": batched, "step1": step1 if batched else "stream",
+              "adaptation": adaptation, "result_delay_s": result_delay_s,
+              "rounds_waited": getattr(pipeline.backend, "rounds_waited", None),
+              "source": session.metadata.get("source")})

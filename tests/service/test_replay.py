@@ -58,7 +58,7 @@ def test_policies_registry_and_custom_policy():
 def test_batched_equals_streaming(fs, contact_session, policy):
     cfg = get_policy(policy).configure(BASE)
     a = replay(contact_session, fs, cfg, batched=False)
-    b = replay(contact_session, fs, cfg, batched=True)
+    b = replay(contact_session, fs, cfg, batched=True, step1="kernel")   # bit parity
     assert a.status["counters"]["swaps"] > 0          # the adaptation really swapped nets
     np.testing.assert_array_equal(a.model_version, b.model_version)
     np.testing.assert_array_equal(a.free, b.free)
@@ -158,3 +158,17 @@ def test_cli_replay_subprocess(tmp_path):
         for _, channel, _ in make_reader(f).iter_messages():
             topics[channel.topic] = topics.get(channel.topic, 0) + 1
     assert topics[TOPIC_ESTIMATE] == 1600 and topics["/wrenchd/events"] > 0
+
+
+def test_worker_adaptation_replays_the_inline_calls(fs, contact_session):
+    """The forked worker replays exactly the inline backend's calls: with no result delay the
+    outcome is the inline one to the bit; with the default delay, rounds serve later."""
+    cfg = get_policy("gated").configure(BASE)
+    inline = replay(contact_session, fs, cfg, adaptation="inline")
+    worker = replay(contact_session, fs, cfg, adaptation="worker", result_delay_s=0.0)
+    assert inline.status["counters"]["swaps"] > 0
+    np.testing.assert_array_equal(inline.model_version, worker.model_version)
+    np.testing.assert_array_equal(inline.wrench, worker.wrench)
+    delayed = replay(contact_session, fs, cfg, adaptation="worker", result_delay_s=1.0)
+    first = lambda r: r.t[np.argmax(r.model_version > 0)]  # noqa: E731
+    assert first(delayed) >= first(inline) + 1.0 - 1e-9

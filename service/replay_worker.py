@@ -1,0 +1,162 @@
+"""Replay's adaptation in a worker process, in simulated time, deterministic.
+
+Inline adaptation (:class:`service.pipeline.InlineAdaptation`) runs each round at the sample
+where it falls due, and the pipeline waits for it: the rounds, not the estimates, then set
+the pace of a replay. :class:`WorkerAdaptation` runs the very same :class:`Adapter` in a
+forked process, on the second core, while the pipeline goes on estimating; as in the daemon,
+where the worker's result arrives some time after the round began, a round's result is used
+from ``result_delay_s`` of *simulated* time after the sample it fell due at.
+
+Deterministic: the pipeline sends the worker, in order, exactly the calls the inline backend
+would make (``offer``, ``drift``, ``tick``, ``reset``), in chunks; the worker replays them on
+its Adapter and answers with the rounds (stamped with their simulated time) and how far it
+has come. The pipeline applies a round at the first sample at or after ``t + result_delay_s``,
+waiting for the worker if it is not that far yet. The outcome depends only on the session,
+the config and ``result_delay_s``, never on how fast either process runs.
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import traceback
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+
+from service.adaptation import AdaptationConfig, RoundResult
+
+CHUNK_S = 0.1           # the pipeline sends its calls at least every this much sample time [s]
+
+
+def _serve(conn, config: dict[str, Any], normalisation: dict[str, np.ndarray] | None) -> None:
+    """Worker main: replay the pipeline's calls on an Adapter; answer rounds and progress."""
+    from service.adaptation import Adapter
+
+    adapter = Adapter(AdaptationConfig(**config), normalisation=normalisation)
+    try:
+        while True:
+            ops = conn.recv()
+            if ops is None:
+                return
+            results = []
+            done = -np.inf
+            for op in ops:
+                kind = op[0]
+                if kind == "offer":
+                    adapter.add(*op[1])
+                elif kind == "drift":
+                    adapter.on_drift(op[1])
+                elif kind == "tick":
+                    result = adapter.round(op[1])
+                    if result is not None:
+                        results.append(result)
+                    done = op[1]
+                elif kind == "reset":
+                    adapter = Adapter(adapter.config, normalisation=adapter.normalisation)
+            conn.send(("progress", done, results))
+    except Exception:  # noqa: BLE001 - reported to the pipeline, which raises it
+        conn.send(("error", traceback.format_exc(limit=8), []))
+    except KeyboardInterrupt:
+        return
+
+
+class WorkerAdaptation:
+    """:class:`~service.pipeline.AdaptationBackend` for replay with the Adapter in a forked
+    process (see the module docstring).
+
+    Args:
+        config: the adaptation settings.
+        normalisation: the ``Corr`` normalisation (from the step-1 model).
+        result_delay_s: simulated time between a round falling due and its net serving [s].
+    """
+
+    def __init__(self, config: AdaptationConfig,
+                 normalisation: dict[str, np.ndarray] | None = None,
+                 result_delay_s: float = 1.0) -> None:
+        if result_delay_s < 0:
+            raise ValueError("result_delay_s must be >= 0")
+        self.config, self.normalisation = config, normalisation
+        self.result_delay_s = float(result_delay_s)
+        # fork: the child starts at once with the parent's modules (a spawned one would spend
+        # seconds importing torch); it runs NumPy and single-threaded torch only.
+        ctx = mp.get_context("fork")
+        self._conn, child = ctx.Pipe()
+        self.process = ctx.Process(target=_serve, name="wrenchd-replay-adaptation",
+                                   args=(child, config.model_dump(), normalisation),
+                                   daemon=True)
+        self.process.start()
+        child.close()
+        self._ops: list[tuple] = []
+        self._chunk_t0: float | None = None
+        self._done = -np.inf                # the worker has replayed every tick up to here
+        self._in_flight = 0                 # chunks sent, not answered
+        self._ready: list[RoundResult] = []  # rounds received, not yet applied
+        self._reset_t = -np.inf             # rounds due before the last reset are void
+        self.errors: list[str] = []
+        self.rounds_waited = 0              # times the pipeline had to wait for the worker
+
+    # -- the pipeline's calls -----------------------------------------------------------
+    def offer(self, windows, step1, measured) -> None:
+        self._ops.append(("offer", (np.asarray(windows, np.float32),
+                                    np.asarray(step1, np.float32),
+                                    np.asarray(measured, np.float32))))
+
+    def drift(self, t: float) -> None:
+        self._ops.append(("drift", t))
+
+    def reset(self, t: float) -> None:
+        self._ops.append(("reset", t))
+        self._reset_t = t
+        self._ready = [r for r in self._ready if r.t > t]     # nothing from before the reset
+
+    def tick(self, t: float) -> list[RoundResult]:
+        self._ops.append(("tick", t))
+        if self._chunk_t0 is None:
+            self._chunk_t0 = t
+        if t - self._chunk_t0 >= CHUNK_S:
+            self._send()
+            self._receive(block=False)      # a poll costs a syscall: once per chunk
+        need = t - self.result_delay_s      # every round due up to here must be known
+        if self._done < need and (self._in_flight or self._ops):
+            self.rounds_waited += 1
+            if self._ops:
+                self._send()
+            while self._done < need and self._in_flight:
+                self._receive(block=True)
+        out = [r for r in self._ready if r.t <= need]
+        if out:                             # applied now: their events carry this time
+            self._ready = [r for r in self._ready if r.t > need]
+            out = [replace(r, t=t) for r in out]
+        return out
+
+    def close(self) -> None:
+        try:
+            self._conn.send(None)
+        except (OSError, ValueError):
+            pass
+        self.process.join(timeout=5.0)
+        if self.process.is_alive():
+            self.process.kill()
+            self.process.join(timeout=2.0)
+        self._conn.close()
+
+    # -- plumbing -----------------------------------------------------------------------
+    def _send(self) -> None:
+        if self._ops:
+            self._conn.send(self._ops)
+            self._ops = []
+            self._in_flight += 1
+        self._chunk_t0 = None
+
+    def _receive(self, block: bool) -> None:
+        while self._in_flight and (block or self._conn.poll()):
+            kind, value, results = self._conn.recv()
+            self._in_flight -= 1
+            if kind == "error":
+                raise RuntimeError(f"replay adaptation worker failed:\n{value}")
+            if value > self._done:
+                self._done = value
+            self._ready.extend(r for r in results if r.t > self._reset_t)
+            block = False
+
