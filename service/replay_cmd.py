@@ -61,7 +61,8 @@ def _cmd_replay(args: argparse.Namespace) -> int:
     config = get_policy(args.policy).configure(load_pipeline_config(args.config, args.seed))
     session = load_session(args.session)
     r = replay(session, load_free_space(args.model), config, policy=args.policy,
-               batched=not args.streaming)
+               batched=not args.streaming, adaptation=args.adaptation,
+               result_delay_s=args.result_delay)
     if args.output:
         Path(args.output).parent.mkdir(parents=True, exist_ok=True)
         write_replay_mcap(args.output, r, {"model": args.model})
@@ -92,8 +93,10 @@ def run_replay_bench(json_path: str | None, duration_s: float = 120.0,
                      policy: str = "gated", seed: int = 3) -> dict:
     """Replay a 200 Hz ``insufflation-change`` session of ``duration_s`` with ``policy``.
 
-    Returns ``{"samples_per_s", "realtime_factor", ...}`` (also written to ``json_path``):
-    the replay itself (pipeline, adaptation included), not loading or writing.
+    Returns ``{"samples_per_s", "realtime_factor", ...}`` (also written to ``json_path``) of
+    the default replay (batched, torch step 1, adaptation in the forked worker): the replay
+    call itself (pipeline, adaptation, batched pre-pass), not simulating or writing. The same
+    run also times inline adaptation, the kernel step 1 and the frozen policy.
     """
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     _setup()
@@ -108,15 +111,20 @@ def run_replay_bench(json_path: str | None, duration_s: float = 120.0,
     config = get_policy(policy).configure(PipelineConfig())
     result: dict = {"policy": policy, "session": f"sim:insufflation-change:{duration_s:g}:{seed}",
                     "rate_hz": session.joint_states.rate_hz, "threads": 1}
-    for name, kwargs in (("batched", {"batched": True}),
-                         ("batched_torch_step1", {"batched": True, "step1": "torch"})):
+    frozen = get_policy("frozen").configure(PipelineConfig())
+    # the default first; the others measured in the same run for comparison
+    for name, cfg, kwargs in (("default", config, {}),
+                              ("inline_adaptation", config, {"adaptation": "inline"}),
+                              ("kernel_step1", config, {"step1": "kernel"}),
+                              ("frozen_no_adaptation", frozen, {})):
         start = time.perf_counter()
-        r = replay(session, fs, config, policy=policy, **kwargs)
+        r = replay(session, fs, cfg, policy=policy, **kwargs)
         wall = time.perf_counter() - start
         sps = len(r.t) / wall
         result[name] = {"samples_per_s": round(sps), "wall_s": round(wall, 2),
-                        "rounds": r.status["counters"]["rounds"]}
-    best = result["batched"]["samples_per_s"]
+                        "rounds": r.status["counters"]["rounds"],
+                        "waited_for_worker": r.meta.get("rounds_waited")}
+    best = result["default"]["samples_per_s"]
     result["samples"] = len(session.joint_states)
     result["samples_per_s"] = best
     result["realtime_factor"] = round(best / session.joint_states.rate_hz, 2)
@@ -145,6 +153,11 @@ def register(sub) -> None:
     rep.add_argument("--report", help="directory for metrics.json and metrics.md")
     rep.add_argument("--streaming", action="store_true",
                      help="estimate sample by sample (slow; the batched path gives the same)")
+    rep.add_argument("--adaptation", choices=["worker", "inline"], default="worker",
+                     help="rounds in a forked worker (default; their nets serve "
+                          "--result-delay s later) or inline at their sample")
+    rep.add_argument("--result-delay", type=float, default=1.0,
+                     help="worker: sample time from a round falling due to its net serving [s]")
     rep.set_defaults(func=_cmd_replay)
 
     cmp_ = sub.add_parser("compare", parents=[common],
