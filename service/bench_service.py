@@ -22,6 +22,7 @@ import socket
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -84,6 +85,21 @@ def _children(pid: int) -> list[int]:
         return []
 
 
+def _drain(stream, path: Path) -> threading.Thread:
+    """Copy a child's output stream to ``path`` until it closes, in a daemon thread.
+
+    The daemon prints a status line per arm every second from its estimation thread; a pipe
+    nobody reads is full after ~64 KB (about 11 minutes) and the next print, and with it
+    estimation, blocks (measured: a status line every 5 ms stalled it within seconds)."""
+    def copy() -> None:
+        with open(path, "w") as sink:
+            for line in stream:
+                sink.write(line)
+    thread = threading.Thread(target=copy, name=f"drain-{path.name}", daemon=True)
+    thread.start()
+    return thread
+
+
 def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 20.0,
                   warmup_s: float = 3.0, adaptation: bool = True,
                   log: bool = True) -> dict[str, Any]:
@@ -117,11 +133,14 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
     received: dict[str, list[tuple[int, bytes]]] = {arm: [] for arm in arms}
     session = None
     status: dict[str, Any] = {}
+    drains: list[threading.Thread] = []
     try:
         for _ in range(len(arms)):
             line = daemon.stdout.readline()
             if "listening" not in line:
                 raise RuntimeError(f"daemon did not start: {line}{daemon.stderr.read()}")
+        drains = [_drain(daemon.stdout, workdir / "daemon.out"),
+                  _drain(daemon.stderr, workdir / "daemon.err")]
         session = open_session(ZenohConfig(connect=[endpoint]))
         subs = [session.declare_subscriber(
             f"dvrk/{arm}/wrenchd/measured_cf",
@@ -176,7 +195,12 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
             session.close()
         daemon.send_signal(signal.SIGINT)
         try:
-            daemon.communicate(timeout=60)
+            if drains:                           # the drain threads own its output now
+                daemon.wait(timeout=60)
+                for thread in drains:
+                    thread.join(timeout=10)
+            else:
+                daemon.communicate(timeout=60)
         except subprocess.TimeoutExpired:
             daemon.kill()
     index = {s: i for i, s in enumerate(stamps)}
