@@ -87,8 +87,10 @@ class GateConfig(BaseModel):
     min_std: tuple[float, ...] = Field(
         default=(0.02, 0.02, 0.1, 0.002, 0.002, 0.002),
         description="floor of each joint's residual std [N m; N on insertion]")
-    max_contact_s: float = Field(default=15.0, gt=0.0,
-                                 description="a longer contact re-calibrates the gate [s]")
+    max_contact_s: float = Field(
+        default=60.0, gt=0.0,
+        description="a longer contact re-calibrates the gate [s]; for as long again after it, "
+                    "nothing is trainable (the rest of a very long contact must not train)")
     learn_sigma: float = Field(default=4.0, gt=0.0,
                                description="only samples scoring below this teach the scale")
     train_sigma: float = Field(default=2.0, gt=0.0,
@@ -135,6 +137,7 @@ class FreeMotionGate:
         self._acc = [0.0] * N_JOINTS           # sum of squared residuals not yet learned
         self._n_acc = 0
         self._seen = 0
+        self._probation_until = -math.inf      # nothing trains before this (after a re-calibration)
         self._cap = np.full(N_JOINTS, np.inf)
         self._std = self._floor.copy()
         self._inv_var = (1.0 / self._std ** 2).tolist()
@@ -227,7 +230,8 @@ class FreeMotionGate:
             else:
                 if score < cfg.learn_sigma:
                     self._learn(zsq)
-                return GateDecision(True, score, -1, trainable=score < cfg.train_sigma)
+                return GateDecision(True, score, -1, trainable=(score < cfg.train_sigma
+                                                                and t >= self._probation_until))
         # in contact
         self._joint_held = self._joint_held + 1 if joint > cfg.joint_exit_sigma else 0
         if score < cfg.exit_sigma and self._joint_held < cfg.joint_samples:
@@ -248,6 +252,7 @@ class FreeMotionGate:
                 self._cap[j] = cfg.max_growth * max(abs(r[j]), self._floor[j])
             self._refresh()
             self._in_contact, self._above, self._joint_above = False, 0, 0
+            self._probation_until = t + cfg.max_contact_s
             start, self._contact_start = self._contact_start, -1
             return GateDecision(False, score, start, recalibrated=True)
         return GateDecision(False, score, self._contact_start)

@@ -17,6 +17,7 @@ from __future__ import annotations
 import gc
 import json
 import os
+import shutil
 import signal
 import socket
 import subprocess
@@ -203,10 +204,13 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
                 daemon.communicate(timeout=60)
         except subprocess.TimeoutExpired:
             daemon.kill()
+        if daemon.returncode == 0:
+            shutil.rmtree(workdir, ignore_errors=True)   # kept when the daemon failed
     index = {s: i for i, s in enumerate(stamps)}
     latencies, per_arm = [], {}
     for arm in arms:
         lat, got = [], np.zeros(n, dtype=bool)
+        lat_at: list[float] = []                          # send time of each latency [s]
         for arrived, payload in received[arm]:
             m = json.loads(payload)
             stamp = m["header"]["stamp"]["sec"] * 1_000_000_000 + m["header"]["stamp"]["nanosec"]
@@ -216,6 +220,7 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
             got[i] = True
             if i >= first:
                 lat.append((arrived - sent_ns[arm][i]) / 1e3)
+                lat_at.append(i / rate_hz)
         missing = int((~got).sum())
         ring = int(status.get(arm, {}).get("counters", {}).get("dropped", 0))
         arr = np.array(lat) if lat else np.array([np.nan])
@@ -226,7 +231,10 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
                         "rate_hz": float(got[first:].sum() / duration_s),
                         "model_version": status.get(arm, {}).get("model", {}).get("version"),
                         "adaptation_rounds": status.get(arm, {}).get("counters", {}).get(
-                            "rounds")}
+                            "rounds"),
+                        # when the worst ones happened: [send time s, latency ms], worst first
+                        "e2e_worst": [[round(lat_at[k], 3), round(lat[k] / 1e3, 1)]
+                                      for k in np.argsort(lat)[::-1][:10]] if lat else []}
         latencies.extend(lat)
     pooled = np.array(latencies) if latencies else np.array([np.nan])
     after_warmup = [mb for t, mb in rss if t >= warmup_s] or [np.nan]

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import gc
 import json
+import queue
 import signal
 import subprocess
 import sys
@@ -120,6 +121,38 @@ def estimate_bytes(est: Estimate, frame_id: str = "psm_base") -> bytes:
                            est.external_torque)
 
 
+class Console:
+    """Status lines printed by their own thread from a bounded queue: a slow or paused
+    terminal (Ctrl-S), a stuck journal or an unread pipe must never block estimation; lines
+    beyond ``capacity`` waiting are dropped (counted)."""
+
+    def __init__(self, capacity: int = 200) -> None:
+        self._queue: queue.Queue[str | None] = queue.Queue(maxsize=capacity)
+        self.dropped = 0
+        self._thread = threading.Thread(target=self._run, name="wrenchd-console", daemon=True)
+        self._thread.start()
+
+    def say(self, line: str) -> None:
+        try:
+            self._queue.put_nowait(line)
+        except queue.Full:
+            self.dropped += 1
+
+    def _run(self) -> None:
+        while (line := self._queue.get()) is not None:
+            try:
+                print(line, flush=True)
+            except (OSError, ValueError):         # stdout closed: nothing to tell anyone
+                pass
+
+    def close(self, timeout_s: float = 2.0) -> None:
+        try:
+            self._queue.put(None, timeout=timeout_s)
+        except queue.Full:
+            pass
+        self._thread.join(timeout=timeout_s)
+
+
 class ArmRuntime:
     """One arm's subscriber, ring, estimation thread, publishers, queryable, token and log."""
 
@@ -142,6 +175,7 @@ class ArmRuntime:
             "arm": cfg.name, "settings": settings.model_dump(mode="json"),
             "keys": self.keys})
         self.log_writer: LogWriterThread | None = None     # set by the daemon before start()
+        self.console: Console | None = None                 # likewise
         self._log_problem_reported = False
         self.pub_wrench = session.declare_publisher(self.keys["wrench"])
         self.pub_events = session.declare_publisher(self.keys["events"])
@@ -262,17 +296,16 @@ class ArmRuntime:
 
     def _console(self, status: dict[str, Any]) -> None:
         est = self.last
+        say = self.console.say if self.console is not None else print
         if est is None:
-            print(f"{self.name}: waiting for joint states on '{self.keys['measured_js']}'",
-                  flush=True)
+            say(f"{self.name}: waiting for joint states on '{self.keys['measured_js']}'")
             return
         c = status["counters"]
         lat = status["latency_us"]
-        print(f"{self.name} t={est.t:8.2f} s  {self.rate_hz:6.1f} Hz  "
+        say(f"{self.name} t={est.t:8.2f} s  {self.rate_hz:6.1f} Hz  "
               f"|F|={np.linalg.norm(est.wrench[:3]):5.2f} N  "
               f"{'free   ' if est.free else 'contact'}  model v{est.model_version}  "
-              f"p99 {lat['p99'] or 0:7.0f} us  dropped {c['dropped']}  errors {c['errors']}",
-              flush=True)
+              f"p99 {lat['p99'] or 0:7.0f} us  dropped {c['dropped']}  errors {c['errors']}")
 
     def close(self) -> None:
         """Undeclare in a safe order (the thread must have stopped)."""
@@ -311,6 +344,7 @@ class Daemon:
         self.arms: list[ArmRuntime] = []
         self.robots: list[subprocess.Popen] = []
         self.log_writer: LogWriterThread | None = None
+        self.console: Console | None = None
 
     def start(self) -> None:
         s = self.settings
@@ -344,8 +378,10 @@ class Daemon:
             else:
                 first[model] = arm
         self.log_writer = LogWriterThread([arm.log for arm in self.arms])
+        self.console = Console()
         for arm in self.arms:
             arm.log_writer = self.log_writer
+            arm.console = self.console
         # Everything loaded so far (torch, models: ~260k objects) lives as long as the daemon.
         # Freezing it keeps the cyclic GC from scanning it: a full collection of it takes
         # 100-300 ms on this machine, a stall every estimate would wait through.
@@ -420,6 +456,9 @@ class Daemon:
             self.thread.join(timeout=10.0)
         for arm in self.arms:
             arm.close()
+        if self.console is not None:
+            self.console.close()
+            self.console = None
         if self.log_writer is not None:            # writes what is queued, finishes the files
             self.log_writer.close()
             self.log_writer = None

@@ -112,3 +112,18 @@ def test_the_block_fed_scale_is_the_per_sample_exponential_rms():
     for row in r[1000:]:
         ms = cfg.alpha * row ** 2 + (1 - cfg.alpha) * ms
     np.testing.assert_allclose(gate.bounds()[1], np.sqrt(ms), rtol=2e-3)
+
+
+def test_nothing_trains_for_max_contact_s_after_a_recalibration():
+    """What follows a re-calibration may be the rest of a very long contact: free (published
+    so), but not trainable for another ``max_contact_s``."""
+    r = noise(4000)
+    r[1000:, 2] += 1.5                                # a lasting step from 5 s on
+    cfg = GateConfig(warmup_samples=500, max_contact_s=2.0)
+    out = run(FreeMotionGate(cfg), r)
+    k = next(i for i, d in enumerate(out) if d.recalibrated)
+    after = out[k + 1:]
+    window = int(2.0 * RATE) - 1
+    assert any(d.free for d in after[:window])              # published free again at once,
+    assert not any(d.trainable for d in after[:window])     # but kept out of training,
+    assert np.mean([d.trainable for d in after[window + 10:]]) > 0.5   # then trains again

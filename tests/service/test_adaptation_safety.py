@@ -34,12 +34,12 @@ of false force), held for 20 s (a 65 s session, not in the suite), gave gated 1.
 ungated 2.19 (inline adaptation). The gate cannot tell a slow drift of the published efforts from instrument
 wear, which it must follow; what keeps such a publisher out is the router's access control.
 
-**Known failure**: with the gate's default ``max_contact_s`` of 15 s, a 24 s contact makes the
-gate re-calibrate on the contact (it takes it for a lasting set-up change) and the rest of
-the contact trains: measured ``post / pre`` 1.71 (seed 7: 23 % of the offered samples were
-in contact), 2.60 (seed 11: 18 %), 1.00 (seed 3: none offered). That test is marked
-``xfail(strict=True)``: it turns into a failure the day the pipeline stops it, so the mark is
-removed with the fix.
+**Was a failure, fixed**: with the gate's old ``max_contact_s`` of 15 s, a 24 s contact made
+the gate re-calibrate on the contact (taking it for a lasting set-up change) and the rest of
+the contact trained: measured ``post / pre`` 1.71 (seed 7: 23 % of the offered samples were
+in contact), 2.60 (seed 11: 18 %), 1.00 (seed 3). Now ``max_contact_s`` is 60 s and, after
+a re-calibration, nothing is trainable for another ``max_contact_s`` (a contact longer than
+that stays out of training too): 1.00 on seed 7, no contact sample offered.
 
 Every case also checks that each model swap carries ``val_before`` and ``val_after`` with
 ``val_after < val_before``: a swap that raises validation error never happens.
@@ -205,9 +205,6 @@ def test_a_long_contact_within_max_contact_s_does_not_spoil_the_model(seal, clea
     assert post <= BOUND * pre and post <= frozen
 
 
-@pytest.mark.xfail(strict=True, reason="the gate re-calibrates after max_contact_s (15 s) and "
-                   "the rest of a longer contact trains the correction net (measured post/pre "
-                   "1.71 on this seed); remove this mark with the fix")
 def test_a_long_contact_with_the_default_gate_does_not_spoil_the_model(seal, clean):
     session = long_contact_session()
     result, pre, post, frozen = judge("24 s contact, default gate", session, seal, clean,
