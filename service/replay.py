@@ -1,10 +1,13 @@
 """Replay a session through the daemon's pipeline in simulated time, fast and deterministic.
 
 The samples go through :meth:`service.pipeline.ArmPipeline.process`, the very method the
-daemon calls (validation, gate, drift, policy, delay line, adaptation, model swaps), with
-the adaptation inline (:class:`~service.pipeline.InlineAdaptation`): a round runs at the
-sample at which it falls due and its model is used from the next sample on, so the outcome
-depends only on the session, the config and the seed.
+daemon calls (validation, gate, drift, policy, delay line, adaptation, model swaps), in
+simulated time. The adaptation runs in a forked worker by default
+(:class:`~service.replay_worker.WorkerAdaptation`: a round's net serves ``result_delay_s``
+of sample time after the round fell due, as in the daemon) or inline
+(:class:`~service.pipeline.InlineAdaptation`: a round runs at the sample at which it falls
+due and its model is used from the next sample on); either way the outcome depends only on
+the session, the config, the seed and the delay.
 
 Fast path (``batched=True``, the default): step 1 of the estimator (the LSTMs) never adapts,
 so :class:`BatchedEstimator` computes it for every gap-free segment at once
@@ -12,8 +15,9 @@ so :class:`BatchedEstimator` computes it for every gap-free segment at once
 ``J^-T`` wrench map in blocks of samples, recomputed from the next sample on whenever the
 pipeline swaps the correction net. It stands in for the pipeline's estimator and returns the
 same :class:`EstimatorOutput` per sample; the rest of ``process`` is untouched. Its step-1
-numbers come from torch's float32 LSTM instead of the NumPy float32 kernel of the streaming
-path: they agree to float32 rounding (about 1e-6 relative), checked by a parity test.
+numbers come by default from torch's float32 LSTM instead of the NumPy float32 kernel of the
+streaming path: they agree to float32 rounding (about 1e-6 relative); ``step1="kernel"``
+gives the streaming path's numbers bit for bit (a parity test checks it).
 """
 
 from __future__ import annotations
