@@ -84,7 +84,7 @@ def run(kind: str, json_path: str | None, duration_s: float, arms: int = 1,
 
 
 def bench_arm_thread(duration_s: float = 20.0) -> dict:
-    """Per-sample cost of what a daemon arm thread does, without zenoh: decode the JSON joint
+    """Per-sample cost of the daemon's work for one arm, without zenoh: decode the JSON joint
     state, run the pipeline (frozen: no adaptation rounds), encode the wrench, log both
     messages to MCAP. Percentiles per stage [us], one ``trocar`` session at 200 Hz."""
     import tempfile

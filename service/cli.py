@@ -209,8 +209,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     bench = sub.add_parser("bench", help="measure speed (medians and percentiles, one run)")
     bench.add_argument("kind", choices=["inference", "arm", "service", "soak", "replay"],
-                       help="inference: estimator step; arm: per-sample cost of a daemon arm "
-                            "thread without zenoh; service: daemon end to end over loopback "
+                       help="inference: estimator step; arm: per-sample cost of the daemon's "
+                            "work for one arm without zenoh; service: daemon end to end over loopback "
                             "zenoh; soak: the same for --duration (default 1800 s) with its "
                             "memory; replay: replay throughput")
     bench.add_argument("--json", help="also write the result to this file")
