@@ -17,7 +17,7 @@ import zenoh
 
 from adapters.zenoh_io import ZenohConfig, open_session
 from service.config import load_settings
-from tests.deploy.test_router_acl import EC_KEY, free_port, openssl
+from tests.deploy.test_router_acl import EC_KEY, free_port, open_router, openssl
 
 DEPLOY = Path(__file__).resolve().parents[2] / "deploy"
 ROUTER = DEPLOY / "zenoh" / "router.json5"
@@ -97,14 +97,7 @@ def session_of(settings, pki: Path, port: int):
 
 def test_a_real_router_lets_each_config_publish_its_arms_only(pki):
     port = free_port()
-    conf = zenoh.Config.from_file(str(ROUTER))
-    conf.insert_json5("listen/endpoints", json.dumps([f"tls/127.0.0.1:{port}"]))
-    for key, name in (("root_ca_certificate", "ca.pem"), ("listen_certificate", "or-router-1.pem"),
-                      ("listen_private_key", "or-router-1-key.pem"),
-                      ("connect_certificate", "or-router-1.pem"),
-                      ("connect_private_key", "or-router-1-key.pem")):
-        conf.insert_json5(f"transport/link/tls/{key}", json.dumps(str(pki / name)))
-    router = zenoh.open(conf)
+    router = open_router(pki, port)
     sessions, got, sub = {}, [], None
     try:
         consumer = ZenohConfig(mode="client", connect=[

@@ -78,8 +78,9 @@ def daemon_session(pki, port):
                                     multicast_scouting=zc.multicast_scouting))
 
 
-def test_only_the_daemon_and_the_robot_publish_their_keys(pki):
-    port = free_port()
+def open_router(pki: Path, port: int):
+    """The deployed router configuration, listening on loopback ``port`` with the test PKI's
+    ``or-router-1`` certificate (mTLS): a real router session."""
     conf = zenoh.Config.from_file(str(ROUTER))
     conf.insert_json5("listen/endpoints", json.dumps([f"tls/127.0.0.1:{port}"]))
     for key, name in (("root_ca_certificate", "ca.pem"), ("listen_certificate", "or-router-1.pem"),
@@ -87,7 +88,12 @@ def test_only_the_daemon_and_the_robot_publish_their_keys(pki):
                       ("connect_certificate", "or-router-1.pem"),
                       ("connect_private_key", "or-router-1-key.pem")):
         conf.insert_json5(f"transport/link/tls/{key}", json.dumps(str(pki / name)))
-    router = zenoh.open(conf)
+    return zenoh.open(conf)
+
+
+def test_only_the_daemon_and_the_robot_publish_their_keys(pki):
+    port = free_port()
+    router = open_router(pki, port)
     sessions = {}
     try:
         sessions["wrenchd-psm1"] = daemon_session(pki, port)
