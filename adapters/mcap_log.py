@@ -35,7 +35,7 @@ from pathlib import Path
 from typing import Any, Callable, IO
 
 import numpy as np
-
+import orjson
 from mcap.writer import CompressionType, Writer
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -80,34 +80,27 @@ STATUS_SCHEMA: dict[str, Any] = {
 }
 
 
-def _json_numbers(values: np.ndarray) -> str:
-    """A JSON array of floats, ``null`` where not finite (the schema allows it)."""
-    items = values.tolist()
-    if all(map(math.isfinite, items)):
-        return repr(items)
-    return "[" + ",".join(repr(v) if math.isfinite(v) else "null" for v in items) + "]"
-
-
 def estimate_record(stamp_ns: int, frame_id: str, wrench: np.ndarray, free: bool, score: float,
                     model_version: int, restarted: bool, predicted: np.ndarray,
                     external: np.ndarray) -> bytes:
-    """One ``/wrenchd/estimate`` message (:data:`ESTIMATE_SCHEMA`), formatted directly: it is
-    written for every sample, and building nested dicts for ``json`` costs several times more.
-    ``wrench`` must be finite (the pipeline never emits a non-finite one)."""
-    w = [float(v) for v in wrench]
+    """One ``/wrenchd/estimate`` message (:data:`ESTIMATE_SCHEMA`); it is written for every
+    sample, so through orjson (arrays natively; a non-finite torque becomes ``null``, which
+    the schema allows). ``wrench`` must be finite (the pipeline never emits a non-finite one)."""
+    w = np.asarray(wrench, dtype=np.float64).tolist()
     if not all(map(math.isfinite, w)):
         raise ValueError("an estimate's wrench must be finite")
     score = float(score)
     score = min(score, 1e9) if math.isfinite(score) else 1e9
     sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
-    return (f'{{"header":{{"stamp":{{"sec":{sec},"nanosec":{nanosec}}},'
-            f'"frame_id":{json.dumps(frame_id)}}},'
-            f'"wrench":{{"force":{{"x":{w[0]!r},"y":{w[1]!r},"z":{w[2]!r}}},'
-            f'"torque":{{"x":{w[3]!r},"y":{w[4]!r},"z":{w[5]!r}}}}},'
-            f'"free":{"true" if free else "false"},"score":{score!r},'
-            f'"model_version":{int(model_version)},"restarted":{"true" if restarted else "false"},'
-            f'"predicted":{_json_numbers(predicted)},"external":{_json_numbers(external)}}}'
-            ).encode()
+    return orjson.dumps({
+        "header": {"stamp": {"sec": sec, "nanosec": nanosec}, "frame_id": frame_id},
+        "wrench": {"force": {"x": w[0], "y": w[1], "z": w[2]},
+                   "torque": {"x": w[3], "y": w[4], "z": w[5]}},
+        "free": bool(free), "score": score, "model_version": int(model_version),
+        "restarted": bool(restarted),
+        "predicted": np.ascontiguousarray(predicted, dtype=np.float64),
+        "external": np.ascontiguousarray(external, dtype=np.float64)},
+        option=orjson.OPT_SERIALIZE_NUMPY)
 
 
 SCHEMAS = {TOPIC_JOINT_STATES: JOINT_STATE_SCHEMA, TOPIC_ESTIMATE: ESTIMATE_SCHEMA,

@@ -18,13 +18,13 @@ malformed bytes, wrong types, lengths that differ, no samples.
 
 from __future__ import annotations
 
-import functools
 import json
 import math
 from dataclasses import dataclass
 from typing import Any, Literal
 
 import numpy as np
+import orjson
 
 from models.errors import ConfigError, DataError
 
@@ -34,7 +34,7 @@ _NS = 1_000_000_000
 _SEC_LIMIT = 2 ** 31
 JOINT_STATE_TYPE = "sensor_msgs/msg/JointState"
 WRENCH_TYPE = "geometry_msgs/msg/WrenchStamped"
-_ENCODE = json.JSONEncoder(separators=(",", ":"), allow_nan=False).encode
+_NUMPY = orjson.OPT_SERIALIZE_NUMPY
 
 
 @dataclass(frozen=True)
@@ -118,9 +118,15 @@ def _header(message: dict[str, Any]) -> tuple[int, str]:
 def _json_object(payload: bytes, what: str) -> dict[str, Any]:
     """Parse ``payload`` as one JSON object, or raise DataError naming ``what`` it should be."""
     try:
-        message = json.loads(payload)
-    except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
-        raise DataError(f"not JSON: {exc}") from None
+        message = orjson.loads(payload)
+    except orjson.JSONDecodeError:
+        # orjson is strict; the standard parser also takes NaN/Infinity literals (Python
+        # publishers write them) and integers beyond 64 bits, so that validation can then
+        # name the bad field instead of only saying "not JSON"
+        try:
+            message = json.loads(payload)
+        except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
+            raise DataError(f"not JSON: {exc}") from None
     if not isinstance(message, dict):
         raise DataError(f"a {what} must be a JSON object, got {type(message).__name__}")
     return message
@@ -136,32 +142,33 @@ def _decode_json_joint_state(payload: bytes) -> JointStateMsg:
         _vector(message, "position"), _vector(message, "velocity"), _vector(message, "effort")))
 
 
+def _finite_vector(values, what: str) -> np.ndarray:
+    v = np.ascontiguousarray(values, dtype=np.float64)
+    if not np.isfinite(v).all():
+        raise ValueError(f"{what} must be finite to be encoded as JSON")
+    return v
+
+
 def _json_joint_state(stamp_ns: int, frame_id: str, names, position, velocity, effort) -> bytes:
     sec, nanosec = _split_ns(stamp_ns)
-    return _ENCODE({"header": {"stamp": {"sec": sec, "nanosec": nanosec}, "frame_id": frame_id},
-                    "name": list(names), "position": [float(v) for v in position],
-                    "velocity": [float(v) for v in velocity],
-                    "effort": [float(v) for v in effort]}).encode()
-
-
-@functools.lru_cache(maxsize=64)
-def _json_string(text: str) -> str:
-    return json.dumps(text)
+    return orjson.dumps({"header": {"stamp": {"sec": sec, "nanosec": nanosec},
+                                    "frame_id": frame_id},
+                         "name": list(names),
+                         "position": _finite_vector(position, "position"),
+                         "velocity": _finite_vector(velocity, "velocity"),
+                         "effort": _finite_vector(effort, "effort")}, option=_NUMPY)
 
 
 def _json_wrench(stamp_ns: int, frame_id: str, wrench: np.ndarray,
                  extra: dict[str, Any] | None) -> bytes:
-    # Formatted directly: this runs for every published sample, and building the nested
-    # dicts for json costs 3x more. ``repr`` of a finite float is valid JSON.
     sec, nanosec = _split_ns(stamp_ns)
-    f = [float(v) for v in wrench]
-    if not all(map(math.isfinite, f)):
-        raise ValueError("a wrench must be finite to be encoded")
-    tail = f',"wrenchd":{_ENCODE(extra)}}}' if extra else "}"
-    return (f'{{"header":{{"stamp":{{"sec":{sec},"nanosec":{nanosec}}},'
-            f'"frame_id":{_json_string(frame_id)}}},'
-            f'"wrench":{{"force":{{"x":{f[0]!r},"y":{f[1]!r},"z":{f[2]!r}}},'
-            f'"torque":{{"x":{f[3]!r},"y":{f[4]!r},"z":{f[5]!r}}}}}{tail}').encode()
+    f = _finite_vector(wrench, "a wrench").tolist()
+    message = {"header": {"stamp": {"sec": sec, "nanosec": nanosec}, "frame_id": frame_id},
+               "wrench": {"force": {"x": f[0], "y": f[1], "z": f[2]},
+                          "torque": {"x": f[3], "y": f[4], "z": f[5]}}}
+    if extra:
+        message["wrenchd"] = extra
+    return orjson.dumps(message, option=_NUMPY)
 
 
 def _decode_json_wrench(payload: bytes) -> tuple[int, str, np.ndarray, dict[str, Any]]:

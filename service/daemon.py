@@ -26,7 +26,6 @@ session is closed.
 from __future__ import annotations
 
 import gc
-import json
 import queue
 import signal
 import subprocess
@@ -39,6 +38,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import orjson
 
 from adapters.mcap_log import (TOPIC_ESTIMATE, TOPIC_EVENTS, TOPIC_STATUS, LogWriterThread,
                                McapLog, estimate_record)
@@ -54,7 +54,6 @@ from service.adaptation import normalisation_of
 from service.pipeline import ArmPipeline, Estimate, Event
 from service.worker import ProcessAdaptation, WorkerProcess
 
-_ENCODE = json.JSONEncoder(separators=(",", ":"), allow_nan=False).encode
 SWITCH_INTERVAL_S = 2e-4
 
 
@@ -99,11 +98,11 @@ class SampleRing:
         return items
 
 
-def _plain(value: Any) -> Any:
-    """JSON fallback for NumPy scalars and anything else (as text)."""
-    if isinstance(value, np.generic):
-        return value.item()
-    return str(value)
+def _event_bytes(body: dict[str, Any]) -> bytes:
+    """JSON of an event or status: NumPy values natively, a non-finite number as ``null``,
+    anything else as its text."""
+    return orjson.dumps(body, default=str,
+                        option=orjson.OPT_SERIALIZE_NUMPY | orjson.OPT_NON_STR_KEYS)
 
 
 def _percentiles(values) -> dict[str, float | None]:
@@ -201,7 +200,7 @@ class ArmRuntime:
 
     def _on_query(self, query) -> None:
         try:
-            query.reply(self.keys["status"], json.dumps(self.status(), default=_plain))
+            query.reply(self.keys["status"], _event_bytes(self.status()))
         except Exception as exc:  # noqa: BLE001 - a query must never kill the daemon
             print(f"wrenchd: status query failed: {exc}", file=sys.stderr)
 
@@ -223,11 +222,7 @@ class ArmRuntime:
     # -- on the estimation thread --------------------------------------------------------
     def _publish_events(self, events: list[Event]) -> None:
         for ev in events:
-            body = ev.to_json()
-            try:
-                payload = _ENCODE(body).encode()
-            except (TypeError, ValueError):
-                payload = json.dumps(body, default=str).encode()
+            payload = _event_bytes(ev.to_json())
             self.pub_events.put(payload)
             self._log(TOPIC_EVENTS, max(int(ev.t * 1e9), 0), payload)
 
@@ -285,7 +280,7 @@ class ArmRuntime:
             self._next_status = now + self.settings.status_interval_s
             status = self.status()
             stamp = self.last.stamp_ns if self.last is not None else 0
-            self._log(TOPIC_STATUS, stamp, json.dumps(status, default=_plain).encode())
+            self._log(TOPIC_STATUS, stamp, _event_bytes(status))
             self._console(status)
         if self.log.problem and not self._log_problem_reported:
             self._log_problem_reported = True
