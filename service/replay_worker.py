@@ -24,9 +24,15 @@ from typing import Any
 
 import numpy as np
 
+from models.series import N_JOINTS
 from service.adaptation import AdaptationConfig, RoundResult
 
 CHUNK_S = 0.1           # the pipeline sends its calls at least every this much sample time [s]
+
+
+# The calls of a chunk, packed: the offered rows stacked in one float32 array, and per other
+# call (tick, drift, reset) its kind, time and how many of the rows were offered before it.
+OFFER_ROWS, TICK, DRIFT, RESET = 0, 1, 2, 3
 
 
 def _serve(conn, config: dict[str, Any], normalisation: dict[str, np.ndarray] | None) -> None:
@@ -36,24 +42,28 @@ def _serve(conn, config: dict[str, Any], normalisation: dict[str, np.ndarray] | 
     adapter = Adapter(AdaptationConfig(**config), normalisation=normalisation)
     try:
         while True:
-            ops = conn.recv()
-            if ops is None:
+            chunk = conn.recv()
+            if chunk is None:
                 return
+            rows, kinds, times, counts, tail = chunk
             results = []
             done = -np.inf
-            for op in ops:
-                kind = op[0]
-                if kind == "offer":
-                    adapter.add(*op[1])
-                elif kind == "drift":
-                    adapter.on_drift(op[1])
-                elif kind == "tick":
-                    result = adapter.round(op[1])
+            a = 0
+            for kind, t, count in zip(kinds, times, counts):
+                if count:               # the rows offered before this call, in one add
+                    adapter.add_rows(rows[a:a + count])
+                    a += count
+                if kind == TICK:
+                    result = adapter.round(t)
                     if result is not None:
                         results.append(result)
-                    done = op[1]
-                elif kind == "reset":
+                    done = t
+                elif kind == DRIFT:
+                    adapter.on_drift(t)
+                elif kind == RESET:
                     adapter = Adapter(adapter.config, normalisation=adapter.normalisation)
+            if tail:
+                adapter.add_rows(rows[a:a + tail])
             conn.send(("progress", done, results))
     except Exception:  # noqa: BLE001 - reported to the pipeline, which raises it
         conn.send(("error", traceback.format_exc(limit=8), []))
@@ -87,7 +97,14 @@ class WorkerAdaptation:
                                    daemon=True)
         self.process.start()
         child.close()
-        self._ops: list[tuple] = []
+        k = config.window * 12
+        self._cols = (k, k + N_JOINTS)          # row layout: window, step-1, measured
+        self._rows = np.zeros((256, k + 2 * N_JOINTS), dtype=np.float32)
+        self._n_rows = 0                        # rows offered in this chunk
+        self._pending = 0                       # of which offered since the last call
+        self._kinds: list[int] = []
+        self._times: list[float] = []
+        self._counts: list[int] = []
         self._chunk_t0: float | None = None
         self._done = -np.inf                # the worker has replayed every tick up to here
         self._in_flight = 0                 # chunks sent, not answered
@@ -98,37 +115,53 @@ class WorkerAdaptation:
 
     # -- the pipeline's calls -----------------------------------------------------------
     def offer(self, windows, step1, measured) -> None:
-        self._ops.append(("offer", (np.asarray(windows, np.float32),
-                                    np.asarray(step1, np.float32),
-                                    np.asarray(measured, np.float32))))
+        n = len(step1)
+        a, b = self._n_rows, self._n_rows + n
+        if b > len(self._rows):
+            grown = np.zeros((max(2 * len(self._rows), b), self._rows.shape[1]), np.float32)
+            grown[:a] = self._rows[:a]
+            self._rows = grown
+        k, m = self._cols
+        rows = self._rows
+        rows[a:b, :k] = np.reshape(windows, (n, k))     # cast to float32 as Adapter.add
+        rows[a:b, k:m] = step1
+        rows[a:b, m:] = measured
+        self._n_rows = b
+        self._pending += n
+
+    def _call(self, kind: int, t: float) -> None:
+        self._kinds.append(kind)
+        self._times.append(t)
+        self._counts.append(self._pending)
+        self._pending = 0
 
     def drift(self, t: float) -> None:
-        self._ops.append(("drift", t))
+        self._call(DRIFT, t)
 
     def reset(self, t: float) -> None:
-        self._ops.append(("reset", t))
+        self._call(RESET, t)
         self._reset_t = t
         self._ready = [r for r in self._ready if r.t > t]     # nothing from before the reset
 
     def tick(self, t: float) -> list[RoundResult]:
-        self._ops.append(("tick", t))
+        self._call(TICK, t)
         if self._chunk_t0 is None:
             self._chunk_t0 = t
         if t - self._chunk_t0 >= CHUNK_S:
             self._send()
             self._receive(block=False)      # a poll costs a syscall: once per chunk
         need = t - self.result_delay_s      # every round due up to here must be known
-        if self._done < need and (self._in_flight or self._ops):
+        if self._done < need and (self._in_flight or self._kinds or self._n_rows):
             self.rounds_waited += 1
-            if self._ops:
-                self._send()
+            self._send()
             while self._done < need and self._in_flight:
                 self._receive(block=True)
+        if not self._ready or self._ready[0].t > need:
+            return []
         out = [r for r in self._ready if r.t <= need]
-        if out:                             # applied now: their events carry this time
-            self._ready = [r for r in self._ready if r.t > need]
-            out = [replace(r, t=t) for r in out]
-        return out
+        # applied now: their events carry this time
+        self._ready = [r for r in self._ready if r.t > need]
+        return [replace(r, t=t) for r in out]
 
     def close(self) -> None:
         try:
@@ -143,9 +176,11 @@ class WorkerAdaptation:
 
     # -- plumbing -----------------------------------------------------------------------
     def _send(self) -> None:
-        if self._ops:
-            self._conn.send(self._ops)
-            self._ops = []
+        if self._kinds or self._n_rows:
+            self._conn.send((self._rows[:self._n_rows].copy(), self._kinds, self._times,
+                             self._counts, self._pending))
+            self._n_rows = self._pending = 0
+            self._kinds, self._times, self._counts = [], [], []
             self._in_flight += 1
         self._chunk_t0 = None
 
