@@ -94,7 +94,9 @@ class RoundResult:
 
 @dataclass
 class _Ring:
-    """A fixed-capacity ring of (window, step1, measured) rows."""
+    """A fixed-capacity ring of (window, step1, measured) rows, with the rows' network input
+    and target (:meth:`Adapter._net_io`) kept beside them: rows written since the last
+    :meth:`normalise` are normalised then, each row once, not once per mini-batch."""
 
     capacity: int
     width: int
@@ -104,17 +106,43 @@ class _Ring:
 
     def __post_init__(self) -> None:
         self.rows = np.zeros((self.capacity, self.width), dtype=np.float32)
+        self.dirty = np.zeros(self.capacity, dtype=bool)
+        self.inp = self.target = np.zeros((0, 0), dtype=np.float32)
+        self._scaling: tuple | None = None
 
     def push(self, row: np.ndarray) -> None:
         self.rows[self.head] = row
+        self.dirty[self.head] = True
         self.head = (self.head + 1) % self.capacity
         self.n = min(self.n + 1, self.capacity)
+
+    def put(self, k: int, row: np.ndarray) -> None:
+        self.rows[k] = row
+        self.dirty[k] = True
 
     def data(self) -> np.ndarray:
         return self.rows[:self.n]
 
     def clear(self) -> None:
         self.n = self.head = 0
+
+    def normalise(self, scaling: tuple, net_io) -> None:
+        """Bring ``inp`` and ``target`` up to date for ``scaling`` (``shift``, ``scale``,
+        ``tau_std``; ``net_io(rows, scaling)`` -> (input, target), row by row)."""
+        if scaling is not self._scaling:
+            self._scaling = scaling
+            self.dirty[:self.n] = True
+        shift, _, tau_std = scaling
+        if self.inp.shape != (self.capacity, len(shift)):
+            self.inp = np.zeros((self.capacity, len(shift)), dtype=np.float32)
+            self.target = np.zeros((self.capacity, len(tau_std)), dtype=np.float32)
+        idx = np.flatnonzero(self.dirty[:self.n])
+        if len(idx) == 0:
+            return
+        inp, target = net_io(self.rows[idx], scaling)
+        self.inp[idx] = inp
+        self.target[idx] = target
+        self.dirty[idx] = False
 
 
 def normalisation_of(free_space) -> dict[str, np.ndarray]:
@@ -179,6 +207,8 @@ class Adapter:
         self.seen = 0            # samples offered (for the holdout split and the reservoir)
         self._evicted = 0        # samples that left the recent ring (reservoir stream length)
         self._rng = np.random.default_rng(c.seed)
+        self._scaling_cache: tuple | None = None
+        self._batch_buf: tuple[np.ndarray, np.ndarray] | None = None
         self._eager_until = -np.inf
         self._next_round: float | None = None
         self.rounds = 0
@@ -188,8 +218,11 @@ class Adapter:
     def add(self, windows: np.ndarray, step1: np.ndarray, measured: np.ndarray) -> None:
         """Offer free-motion samples: (n, W, 12) windows, (n, 6) step-1 and measured torques."""
         windows = np.asarray(windows, dtype=np.float32).reshape(len(step1), -1)
-        rows = np.concatenate([windows, np.asarray(step1, np.float32),
-                               np.asarray(measured, np.float32)], axis=1)
+        self.add_rows(np.concatenate([windows, np.asarray(step1, np.float32),
+                                      np.asarray(measured, np.float32)], axis=1))
+
+    def add_rows(self, rows: np.ndarray) -> None:
+        """:meth:`add` of (n, W * 12 + 12) float32 rows: flat window, step-1, measured."""
         for row in rows:
             self.seen += 1
             if self.seen % self.config.holdout_every == 0:
@@ -206,7 +239,7 @@ class Adapter:
             return
         k = int(self._rng.integers(0, self._evicted))        # reservoir sampling
         if k < self.reservoir.capacity:
-            self.reservoir.rows[k] = row
+            self.reservoir.put(k, row)
 
     def on_drift(self, t: float) -> None:
         """The set-up changed at ``t`` [s]: adapt eagerly, forget the old regime's samples."""
@@ -246,6 +279,9 @@ class Adapter:
             return inp, target
         return torch.from_numpy(inp), torch.from_numpy(target)
 
+    def _net_rows(self, rows: np.ndarray, scaling) -> tuple[np.ndarray, np.ndarray]:
+        return self._net_io(rows, scaling, tensors=False)
+
     def score(self, corr: Corr, rows: np.ndarray) -> float:
         """Held-out error: mean over joints of RMSE / tau_std of the corrected torque."""
         inp, target = self._net_io(rows, self._scaling(corr))
@@ -264,17 +300,39 @@ class Adapter:
     def _needed(self) -> int:
         return self.config.min_train_samples if self.corr is None else 32
 
-    def _batch(self, n: int) -> np.ndarray:
+    def _batch(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """A mini-batch of ``n`` rows' (network input, target), drawn ``recent_fraction``
+        from the recent ring, the rest from the reservoir, from the rings' normalised rows
+        (:meth:`_Ring.normalise` first); the arrays are reused by the next call."""
         c = self.config
         n_recent = n if self.reservoir.n == 0 else int(round(n * c.recent_fraction))
         n_recent = min(n_recent, n) if self.recent.n else 0
-        parts = []
+        n_old = n - n_recent if self.reservoir.n else 0
+        size = n_recent + n_old
+        width = (self.recent.inp.shape[1], self.recent.target.shape[1])
+        if self._batch_buf is None or self._batch_buf[0].shape != (size, width[0]):
+            self._batch_buf = (np.empty((size, width[0]), np.float32),
+                               np.empty((size, width[1]), np.float32))
+        inp, target = self._batch_buf
         if n_recent:
-            parts.append(self.recent.data()[self._rng.integers(0, self.recent.n, n_recent)])
-        if n - n_recent and self.reservoir.n:
-            parts.append(self.reservoir.data()[self._rng.integers(0, self.reservoir.n,
-                                                                  n - n_recent)])
-        return np.concatenate(parts)
+            idx = self._rng.integers(0, self.recent.n, n_recent)
+            self.recent.inp.take(idx, 0, inp[:n_recent])
+            self.recent.target.take(idx, 0, target[:n_recent])
+        if n_old:
+            idx = self._rng.integers(0, self.reservoir.n, n_old)
+            self.reservoir.inp.take(idx, 0, inp[n_recent:])
+            self.reservoir.target.take(idx, 0, target[n_recent:])
+        return inp, target
+
+    def _round_scaling(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`_scaling` of the serving net, the same object while its values are (the
+        rings then keep their normalised rows)."""
+        scaling = self._scaling(self.corr)
+        cached = self._scaling_cache
+        if cached is not None and all(np.array_equal(a, b) for a, b in zip(scaling, cached)):
+            return cached
+        self._scaling_cache = scaling
+        return scaling
 
     def round(self, t: float) -> RoundResult | None:
         """One fine-tuning round at time ``t`` [s] if due; None otherwise."""
@@ -289,7 +347,9 @@ class Adapter:
             self.corr = zero_corr(self.corr_config, x.numpy(), s.numpy(), self.config.seed,
                                   self.normalisation)
         holdout = np.stack(self.holdout) if len(self.holdout) >= 16 else None
-        scaling = self._scaling(self.corr)
+        scaling = self._round_scaling()
+        for ring in (self.recent, self.reservoir):
+            ring.normalise(scaling, self._net_rows)
         # Adam as torch.optim.Adam, on NumPy (models/estimator/corr_finetune.py: ~10x faster
         # per step at this size, where torch's dispatch costs more than the arithmetic). The
         # tuner starts from a copy of the serving net's weights.
@@ -298,7 +358,7 @@ class Adapter:
             h_inp, h_target = self._net_io(holdout, scaling, tensors=False)
             before = _rmse_mean(tuner.forward(h_inp), h_target)
         for _ in range(c.round_steps):
-            tuner.step(*self._net_io(self._batch(c.batch_size), scaling, tensors=False))
+            tuner.step(*self._batch(c.batch_size), with_loss=False)
         self.rounds += 1
         n_train = self.recent.n + self.reservoir.n
         if holdout is None:

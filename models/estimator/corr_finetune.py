@@ -66,6 +66,9 @@ class CorrFineTuner:
         self.beta1, self.beta2 = betas
         self.eps = float(eps)
         self.steps = 0
+        self._tmp = np.zeros_like(self.flat)          # Adam's scratch, reused every step
+        self._denom = np.zeros_like(self.flat)
+        self._ws: dict[str, np.ndarray] | None = None
 
     def forward(self, inp: np.ndarray) -> np.ndarray:
         """The net's output for (B, n_in) inputs."""
@@ -77,45 +80,66 @@ class CorrFineTuner:
         out += b2
         return out
 
-    def gradients(self, inp: np.ndarray, target: np.ndarray) -> tuple[float, list[np.ndarray]]:
-        """Loss and its gradients w.r.t. ``params`` (written into ``grads``) for (B, n_in)
-        inputs and (B, n_out) targets."""
+    def _workspace(self, batch: int) -> dict[str, np.ndarray]:
+        """Intermediate arrays of one step for ``batch`` rows, allocated once per size."""
+        ws = self._ws
+        if ws is None or ws["z"].shape[0] != batch:
+            hidden, n_out = self.params[2].shape
+            ws = self._ws = {"z": np.empty((batch, hidden), np.float32),
+                             "h": np.empty((batch, hidden), np.float32),
+                             "active": np.empty((batch, hidden), bool),
+                             "d_h": np.empty((batch, hidden), np.float32),
+                             "out": np.empty((batch, n_out), np.float32)}
+        return ws
+
+    def gradients(self, inp: np.ndarray, target: np.ndarray, with_loss: bool = True
+                  ) -> tuple[float | None, list[np.ndarray]]:
+        """Loss (None unless ``with_loss``) and its gradients w.r.t. ``params`` (written into
+        ``grads``) for (B, n_in) inputs and (B, n_out) targets."""
         w1, b1, w2, b2 = self.params
         g_w1, g_b1, g_w2, g_b2 = self.grads
-        z = inp @ w1
+        ws = self._workspace(len(inp))
+        z, h, d_h, err = ws["z"], ws["h"], ws["d_h"], ws["out"]
+        np.matmul(inp, w1, out=z)
         z += b1
-        h = np.maximum(z, 0.0)
-        out = h @ w2
-        out += b2
-        err = out - target
-        loss = float(np.mean(err * err))
-        d_out = err * np.float32(2.0 / err.size)
+        np.maximum(z, 0.0, out=h)
+        np.matmul(h, w2, out=err)
+        err += b2
+        err -= target                       # the output's error
+        loss = float(np.mean(err * err)) if with_loss else None
+        d_out = err
+        d_out *= np.float32(2.0 / err.size)
         np.matmul(h.T, d_out, out=g_w2)
         np.sum(d_out, axis=0, out=g_b2)
-        d_h = d_out @ w2.T
-        d_h *= z > 0.0
+        np.matmul(d_out, w2.T, out=d_h)
+        active = np.greater(z, 0.0, out=ws["active"])
+        d_h *= active
         np.matmul(inp.T, d_h, out=g_w1)
         np.sum(d_h, axis=0, out=g_b1)
         return loss, self.grads
 
-    def step(self, inp: np.ndarray, target: np.ndarray) -> float:
-        """One Adam step on a mini-batch; returns the loss before the step."""
+    def step(self, inp: np.ndarray, target: np.ndarray, with_loss: bool = True) -> float | None:
+        """One Adam step on a mini-batch; returns the loss before the step (None unless
+        ``with_loss``)."""
         inp = np.asarray(inp, dtype=np.float32)
         target = np.asarray(target, dtype=np.float32)
-        loss, _ = self.gradients(inp, target)
+        loss, _ = self.gradients(inp, target, with_loss)
         self.steps += 1
         b1, b2 = self.beta1, self.beta2
         step_size = self.lr / (1.0 - b1 ** self.steps)
         root_bc2 = math.sqrt(1.0 - b2 ** self.steps)
-        g, m, v = self.grad, self.m, self.v
+        g, m, v, tmp, denom = self.grad, self.m, self.v, self._tmp, self._denom
         if self.weight_decay:
-            g += np.float32(self.weight_decay) * self.flat
+            np.multiply(self.flat, np.float32(self.weight_decay), out=tmp)
+            g += tmp
         m *= b1
-        m += (1.0 - b1) * g
+        np.multiply(g, 1.0 - b1, out=tmp)
+        m += tmp
         v *= b2
         g *= g
-        v += (1.0 - b2) * g
-        denom = np.sqrt(v)
+        np.multiply(g, 1.0 - b2, out=tmp)
+        v += tmp
+        np.sqrt(v, out=denom)
         denom /= root_bc2
         denom += self.eps
         np.divide(m, denom, out=denom)
