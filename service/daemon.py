@@ -55,6 +55,7 @@ from service.pipeline import ArmPipeline, Estimate, Event
 from service.worker import ProcessAdaptation, WorkerProcess
 
 SWITCH_INTERVAL_S = 2e-4
+BATCH = 32              # samples of one arm estimated before the next arm's turn
 
 
 def load_free_space(spec: str) -> FreeSpaceModel:
@@ -230,18 +231,52 @@ class ArmRuntime:
         """Hand a record (bytes, or a function making them) to the log writer thread."""
         self.log_writer.put(self.log, topic, stamp_ns, payload)
 
-    def handle(self, arrived_ns: int, payload: bytes) -> None:
-        """One payload through decode -> pipeline -> publish -> log."""
-        enc = self.cfg.encoding
+    def _decode(self, payload: bytes):
+        """The decoded joint state, or None after publishing the refusal's error event."""
         try:
-            msg = decode_joint_state(enc, payload)
+            return decode_joint_state(self.cfg.encoding, payload)
         except DataError as exc:
             ev = self.pipeline.reject(time.time(), "decode", str(exc))
             self._publish_events([Event(ev.t, ev.kind, {**ev.detail,
                                                         "payload_bytes": len(payload),
                                                         "payload_head": payload[:64].hex()})])
+            return None
+
+    def handle(self, arrived_ns: int, payload: bytes) -> None:
+        """One payload through decode -> pipeline -> publish -> log."""
+        msg = self._decode(payload)
+        if msg is not None:
+            self._emit(arrived_ns, payload, msg, *self.pipeline.process(msg))
+
+    def handle_many(self, items: list[tuple[int, bytes]]) -> None:
+        """Queued payloads of this arm, in order: a backlog goes through the pipeline in one
+        pass (:meth:`ArmPipeline.process_many`); each wrench is published as soon as its
+        batch is estimated."""
+        if len(items) < ArmPipeline.BATCH_MIN:
+            for arrived_ns, payload in items:
+                self.handle_safe(arrived_ns, payload)
             return
-        est, events = self.pipeline.process(msg)
+        try:
+            decoded = [(arrived_ns, payload, self._decode(payload))
+                       for arrived_ns, payload in items]
+            decoded = [d for d in decoded if d[2] is not None]
+            results = self.pipeline.process_many([d[2] for d in decoded])
+        except Exception as exc:  # noqa: BLE001 - never let one batch kill the arm
+            ev = self.pipeline.reject(time.time(), "internal", f"{type(exc).__name__}: {exc}")
+            self._publish_events([ev])
+            return
+        for (arrived_ns, payload, msg), (est, events) in zip(decoded, results):
+            try:
+                self._emit(arrived_ns, payload, msg, est, events)
+            except Exception as exc:  # noqa: BLE001
+                ev = self.pipeline.reject(time.time(), "internal",
+                                          f"{type(exc).__name__}: {exc}")
+                self._publish_events([ev])
+
+    def _emit(self, arrived_ns: int, payload: bytes, msg, est: Estimate | None,
+              events: list[Event]) -> None:
+        """Publish and log one sample's outcome."""
+        enc = self.cfg.encoding
         if est is not None:
             extra = ({"free": est.free, "model_version": est.model_version,
                       "score": min(est.score, 1e9)} if enc == "json" else None)
@@ -394,9 +429,9 @@ class Daemon:
                   f"logging to {s.log.directory}", flush=True)
 
     def _estimate(self) -> None:
-        """The estimation thread: every arm's queued samples, interleaved across arms in
-        arrival order per arm, then each arm's housekeeping; until stopped (what is queued
-        at the stop is still estimated).
+        """The estimation thread: every arm's queued samples, in arrival order per arm, arms
+        taking turns, then each arm's housekeeping; until stopped (what is queued at the stop
+        is still estimated).
 
         One thread for all arms, not one each: estimation threads of one process would only
         take turns on the GIL, and each switch costs; interleaving keeps arms fair.
@@ -408,10 +443,12 @@ class Daemon:
             self.wake.clear()
             queued = [(arm, arm.ring.drain()) for arm in arms]
             depth = max((len(items) for _, items in queued), default=0)
-            for k in range(depth):             # samples that arrive meanwhile set ``wake``
+            # arms take turns, at most BATCH samples each (samples that arrive meanwhile set
+            # ``wake``); a backlog of one arm goes through its pipeline in one pass
+            for k in range(0, depth, BATCH):
                 for arm, items in queued:
                     if k < len(items):
-                        arm.handle_safe(*items[k])
+                        arm.handle_many(items[k:k + BATCH])
             now = time.monotonic()
             for arm in arms:
                 arm.housekeeping(now)

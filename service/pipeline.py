@@ -263,35 +263,92 @@ class ArmPipeline:
     # -- per sample ---------------------------------------------------------------------
     def process(self, msg: JointStateMsg) -> tuple[Estimate | None, list[Event]]:
         """Run one decoded joint state through the pipeline."""
+        admitted = self._admit(msg)
+        if isinstance(admitted, list):
+            return None, admitted
+        t, events, gap_s = admitted
+        try:
+            out = self.estimator.step_one(t, msg.position, msg.velocity, msg.effort)
+        except DataError as exc:                    # cannot happen after validation; be safe
+            return None, events + [self._error(t, "invalid", str(exc))]
+        est, events = self._after(msg, t, out, events, gap_s)
+        events.extend(self._adapt(t))
+        return est, events
+
+    #: the smallest backlog :meth:`process_many` estimates in one pass (below, one by one)
+    BATCH_MIN = 6
+
+    def process_many(self, msgs: list[JointStateMsg]
+                     ) -> list[tuple[Estimate | None, list[Event]]]:
+        """Consecutive joint states of this arm, as :meth:`process` would handle them one by
+        one, with two differences: the estimator works a backlog off in one pass
+        (:meth:`TwoStepEstimator.step_many`: equal up to float32 rounding), and the
+        adaptation is looked at once, after the last sample (a model that became ready
+        meanwhile serves from the next call on, as if it had come a few samples later).
+        """
+        if len(msgs) < self.BATCH_MIN:
+            return [self.process(m) for m in msgs]
+        results: list[tuple[Estimate | None, list[Event]]] = []
+        admitted: list[tuple[int, JointStateMsg, float, list[Event], float | None]] = []
+        for msg in msgs:
+            a = self._admit(msg)
+            if isinstance(a, list):
+                results.append((None, a))
+            else:
+                admitted.append((len(results), msg, *a))
+                results.append((None, []))
+        if not admitted:
+            return results
+        try:
+            outs = self.estimator.step_many(
+                np.array([a[2] for a in admitted]), np.stack([a[1].position for a in admitted]),
+                np.stack([a[1].velocity for a in admitted]),
+                np.stack([a[1].effort for a in admitted]))
+        except DataError as exc:                    # cannot happen after validation; be safe
+            for k, _, t, events, _ in admitted:
+                results[k] = (None, events + [self._error(t, "invalid", str(exc))])
+            return results
+        for (k, msg, t, events, gap_s), out in zip(admitted, outs):
+            results[k] = self._after(msg, t, out, events, gap_s)
+        k, t = admitted[-1][0], admitted[-1][2]
+        results[k][1].extend(self._adapt(t))
+        return results
+
+    def _admit(self, msg: JointStateMsg) -> tuple[float, list[Event], float | None] | list[Event]:
+        """Validation and stamp order: ``(t, events, gap_s)`` of a sample to estimate (``gap_s``
+        the time since the last one when it is a gap, else None), or the refusal's events."""
         self.counters.received += 1
         t = msg.stamp_ns / 1e9
         events: list[Event] = []
         reason = self._validate(msg)
         if reason is not None:
-            return None, [self._error(t, "invalid", reason)]
-        if self._last_ns is not None and msg.stamp_ns <= self._last_ns:
-            kind = "duplicate" if msg.stamp_ns == self._last_ns else "time_backwards"
+            return [self._error(t, "invalid", reason)]
+        last = self._last_ns
+        if last is not None and msg.stamp_ns <= last:
+            kind = "duplicate" if msg.stamp_ns == last else "time_backwards"
             self._behind += 1
-            event = self._error(t, kind, f"stamp {msg.stamp_ns} ns after {self._last_ns} ns")
+            event = self._error(t, kind, f"stamp {msg.stamp_ns} ns after {last} ns")
             if self._behind < self.config.validation.resync_after:
-                return None, [event]
+                return [event]
             events += [event, Event(t, "clock_reset", {          # a new timeline: accept it
-                "arm": self.arm, "last_ns": self._last_ns, "now_ns": msg.stamp_ns})]
-            self._last_ns = None
-            self._pending.clear()
-        gap = (self._last_ns is not None
-               and msg.stamp_ns - self._last_ns > self.config.estimator.max_gap_s * 1e9)
-        try:
-            out = self.estimator.step_one(t, msg.position, msg.velocity, msg.effort)
-        except DataError as exc:                    # cannot happen after validation; be safe
-            return None, events + [self._error(t, "invalid", str(exc))]
+                "arm": self.arm, "last_ns": last, "now_ns": msg.stamp_ns})]
+            last = None
+        gap_s = None
+        if last is not None and msg.stamp_ns - last > self.config.estimator.max_gap_s * 1e9:
+            gap_s = (msg.stamp_ns - last) / 1e9
         self._behind = 0
-        if gap:
+        self._last_ns = msg.stamp_ns
+        return t, events, gap_s
+
+    def _after(self, msg: JointStateMsg, t: float, out, events: list[Event],
+               gap_s: float | None) -> tuple[Estimate | None, list[Event]]:
+        """Everything after the estimator for one sample: gate, drift, offer (not adaptation)."""
+        if events and events[-1].kind == "clock_reset":
+            self._pending.clear()
+        if gap_s is not None:
             self.counters.gaps += 1
             self._pending.clear()                      # the delay line spans no gap
-            events.append(Event(t, "gap", {"arm": self.arm,
-                                           "gap_s": (msg.stamp_ns - self._last_ns) / 1e9}))
-        self._last_ns = msg.stamp_ns
+            events.append(Event(t, "gap", {"arm": self.arm, "gap_s": gap_s}))
         if not np.isfinite(out.wrench).all():
             return None, events + [self._error(t, "non_finite_output", "estimate not finite")]
         index = self._index
@@ -316,7 +373,6 @@ class ArmPipeline:
                 self.backend.drift(t)
         self._offer(t, out, msg.effort, decision.free, events, calibrating, decision.trainable,
                     decision.contact_started)
-        events.extend(self._adapt(t))
         est = Estimate(index, msg.stamp_ns, t, msg.position, msg.velocity, msg.effort,
                        out.wrench, out.predicted_torque, out.external_torque, decision.free,
                        decision.score, self.model_version, out.restarted)

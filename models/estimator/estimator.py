@@ -180,6 +180,68 @@ class TwoStepEstimator:
         return EstimatorOutput(float(t), predicted, external, wrench, restart, step1,
                                None if window is None else window.copy())
 
+    def step_many(self, t: np.ndarray, q: np.ndarray, dq: np.ndarray,
+                  tau_measured: np.ndarray) -> list[EstimatorOutput]:
+        """Estimate consecutive samples of the stream at once: what ``len(t)`` calls of
+        :meth:`step_one` return, up to float32 rounding (restarts included).
+
+        The recurrence still runs sample by sample, but the input projection, the output
+        heads, the correction net and (for 4 samples or more) the wrench map run once over
+        all of them: a backlog is worked off at a fraction of the per-sample cost.
+
+        Args:
+            t: (N,) sample times [s]; q, dq, tau_measured: (N, 6) as in :meth:`step_one`.
+        Raises:
+            DataError: wrong shapes or non-finite values (nothing is estimated then).
+        """
+        t = np.asarray(t, dtype=np.float64)
+        q, dq = np.asarray(q, dtype=np.float64), np.asarray(dq, dtype=np.float64)
+        tau_measured = np.asarray(tau_measured, dtype=np.float64)
+        n = len(t)
+        if t.shape != (n,) or not q.shape == dq.shape == tau_measured.shape == (n, N_JOINTS):
+            raise DataError(f"t must be (N,) and q, dq, tau_measured (N, 6); got {t.shape}, "
+                            f"{q.shape}, {dq.shape}, {tau_measured.shape}")
+        x = np.concatenate([q, dq], axis=1)                      # (N, 12) [q, dq]
+        if not (np.isfinite(t).all() and np.isfinite(x).all()
+                and np.isfinite(tau_measured).all()):
+            raise DataError("joint state contains NaN or Inf")
+        if n == 0:
+            return []
+        max_gap = self.config.max_gap_s
+        restart = np.empty(n, dtype=bool)
+        last = self._t_last
+        restart[0] = last is None or not 0.0 < t[0] - last <= max_gap
+        step = np.diff(t)
+        restart[1:] = ~((step > 0.0) & (step <= max_gap))
+        step1 = np.empty((n, N_JOINTS), dtype=np.float64)
+        windows = [] if self._corr is not None else None
+        starts = np.append(np.flatnonzero(restart), n)
+        if starts[0] != 0:
+            starts = np.r_[0, starts]
+        for a, b in zip(starts[:-1].tolist(), starts[1:].tolist()):
+            if restart[a]:
+                self.reset_state()
+            if self._state is None:
+                self._state = self._recurrent.initial_state(1)
+            y, self._state = self._recurrent.run(x[a:b], self._state)
+            step1[a:b] = y
+            if windows is not None:
+                windows += [self._window.push(row).copy() for row in x[a:b]]
+        self._t_last = float(t[-1])
+        if self._corr is not None:
+            win = np.stack(windows)
+            predicted = self._corr.correct(win, step1.astype(np.float32)).astype(np.float64)
+        else:
+            win, predicted = None, step1
+        external = tau_measured - predicted
+        if n >= 4:
+            wrench = self.wrench_map.wrench_batch(q, external)
+        else:
+            wrench = np.stack([self.wrench_map.wrench(q[i], external[i]) for i in range(n)])
+        return [EstimatorOutput(float(t[i]), predicted[i], external[i], wrench[i],
+                                bool(restart[i]), step1[i],
+                                None if win is None else win[i]) for i in range(n)]
+
     def predict_torque(self, features: np.ndarray) -> np.ndarray:
         """Predicted torques of one gap-free segment: (T, 12) -> (T, 6), from a fresh state."""
         if isinstance(self.correction, Xfer):

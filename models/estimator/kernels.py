@@ -88,11 +88,21 @@ class LSTMLayerKernel:
         if x.ndim == 2:
             xp = x @ self.weight_x                                           # (B, G*4H)
             xp += self.bias_flat
-            z = np.matmul(h, self.weight_h)                                  # (G, B, 4H)
-            z += xp.reshape(x.shape[0], self.n_groups, -1).transpose(1, 0, 2)
-        else:
-            z = np.matmul(np.concatenate([x, h], axis=-1), self.weight)
-            z += self.bias
+            return self.step_projected(
+                xp.reshape(x.shape[0], self.n_groups, -1).transpose(1, 0, 2), h, c)
+        z = np.matmul(np.concatenate([x, h], axis=-1), self.weight)
+        z += self.bias
+        return self._gates(z, c)
+
+    def step_projected(self, xp: np.ndarray, h: np.ndarray,
+                       c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """One step given the input's projection plus bias ``xp`` (G, B, 4H) (broadcastable)."""
+        z = np.matmul(h, self.weight_h)                                      # (G, B, 4H)
+        z += xp
+        return self._gates(z, c)
+
+    def _gates(self, z: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """New ``(h, c)`` from the pre-activations ``z`` (G, B, 4H), overwritten."""
         np.tanh(z, out=z)
         hh = self.hidden_size
         sig = z[..., :3 * hh]
@@ -201,9 +211,13 @@ class GroupedRecurrentKernel:
             h, c = layer.step(inp, state[2 * k], state[2 * k + 1])
             new += [h, c]
             inp = h
+        return self.head(inp), tuple(new)
+
+    def head(self, top: np.ndarray) -> np.ndarray:
+        """The output heads on the last layer's hidden states: (G, B, H) -> (B, n_out)."""
         feats = []
         for g, trunk in enumerate(self.trunks):
-            f = inp[g]
+            f = top[g]
             for w, b, relu in trunk:
                 f = f @ w
                 f += b
@@ -212,7 +226,36 @@ class GroupedRecurrentKernel:
             feats.append(f)
         y = np.concatenate(feats, axis=-1) @ self.final_weight
         y += self.final_bias
-        return y, tuple(new)
+        return y
+
+    def run(self, x: np.ndarray, state: RecurrentState) -> tuple[np.ndarray, RecurrentState]:
+        """A sequence of one stream: (T, n_in) raw inputs -> ((T, n_out) outputs, new state).
+
+        The same numbers as T calls of :meth:`step` up to float32 rounding (the first layer's
+        input projection and the heads run as one matmul over the sequence, the recurrence
+        step by step): the daemon estimates a backlog of samples this way.
+        """
+        steps = len(x)
+        seq = x.astype(self.dtype, copy=False)
+        new: list[np.ndarray] = []
+        for k, layer in enumerate(self.layers):
+            h, c = state[2 * k], state[2 * k + 1]
+            out = np.empty((steps, layer.n_groups, h.shape[1], layer.hidden_size), self.dtype)
+            if k == 0:                          # one (T, G*4H) projection of the shared input
+                proj = seq @ layer.weight_x
+                proj += layer.bias_flat
+                proj = proj.reshape(steps, layer.n_groups, 1, -1)
+                for i in range(steps):
+                    h, c = layer.step_projected(proj[i], h, c)
+                    out[i] = h
+            else:
+                for i in range(steps):
+                    h, c = layer.step(seq[i], h, c)
+                    out[i] = h
+            new += [h, c]
+            seq = out
+        top = seq[:, :, 0, :].transpose(1, 0, 2)                     # (G, T, H)
+        return self.head(top), tuple(new)
 
 
 class RecurrentStream:

@@ -97,3 +97,34 @@ def test_contact_never_reaches_training_on_a_contact_session(seal):
     strong = truth.in_contact & (np.linalg.norm(truth.external_wrench[:, :3], axis=1) > 3.0)
     assert strong.sum() > 100 and (~flags[strong]).mean() > 0.95
     assert p.counters.discarded_onsets > 0               # onsets were dropped from the line
+
+
+def test_a_backlog_processed_at_once_gives_what_one_by_one_gives(seal, trocar):
+    """process_many (the daemon's backlog path) against process, sample by sample, on a
+    stream with a NaN, a duplicate, a stamp going backwards and a gap: the same refusals and
+    events, estimates equal to float32 rounding, the same gate verdicts and restarts."""
+    stream = [msg(trocar, i) for i in range(400)]
+    stream[30] = msg(trocar, 30, velocity=np.full(6, np.nan))
+    stream[60] = msg(trocar, 59)                                  # duplicate
+    stream[90] = msg(trocar, 80)                                  # backwards
+    stream[200:] = [msg(trocar, i, t=trocar.t[i] + 0.3) for i in range(200, 400)]   # a gap
+    config = PipelineConfig(policy=PolicyConfig(name="frozen"), calibration_s=0.5)
+    one = ArmPipeline("PSM1", seal, config)
+    many = ArmPipeline("PSM1", seal, config)
+    ref = [one.process(m) for m in stream]
+    got, rng, i = [], np.random.default_rng(1), 0
+    while i < len(stream):
+        k = int(rng.integers(1, 30))
+        got += many.process_many(stream[i:i + k])
+        i += k
+    assert len(got) == len(ref)
+    batched = 0
+    for (a, ev_a), (b, ev_b) in zip(ref, got):
+        assert [e.kind for e in ev_a] == [e.kind for e in ev_b]
+        assert (a is None) == (b is None)
+        if a is not None:
+            np.testing.assert_allclose(b.wrench, a.wrench, rtol=1e-4, atol=1e-5)
+            np.testing.assert_allclose(b.external_torque, a.external_torque, atol=1e-5)
+            assert (a.free, a.restarted, a.index) == (b.free, b.restarted, b.index)
+            batched += 1
+    assert batched == 400 - 3 and one.counters == many.counters
