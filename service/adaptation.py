@@ -28,7 +28,6 @@ many "standard deviations" away when the arm moves elsewhere; without it, the fi
 from __future__ import annotations
 
 import copy
-from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -126,6 +125,12 @@ class _Ring:
     def clear(self) -> None:
         self.n = self.head = 0
 
+    def order(self) -> np.ndarray:
+        """Indices of the rows from the oldest to the newest."""
+        if self.n < self.capacity:
+            return np.arange(self.n)
+        return (self.head + np.arange(self.capacity)) % self.capacity
+
     def normalise(self, scaling: tuple, net_io) -> None:
         """Bring ``inp`` and ``target`` up to date for ``scaling`` (``shift``, ``scale``,
         ``tau_std``; ``net_io(rows, scaling)`` -> (input, target), row by row)."""
@@ -199,7 +204,7 @@ class Adapter:
         self.width = c.window * 12 + 2 * N_JOINTS
         self.recent = _Ring(c.recent_size, self.width)
         self.reservoir = _Ring(max(c.reservoir_size, 1), self.width)
-        self.holdout: deque[np.ndarray] = deque(maxlen=c.holdout_size)
+        self._holdout = _Ring(c.holdout_size, self.width)
         self.corr = corr
         if corr is not None:
             self.corr_config = corr.config
@@ -226,7 +231,7 @@ class Adapter:
         for row in rows:
             self.seen += 1
             if self.seen % self.config.holdout_every == 0:
-                self.holdout.append(row)
+                self._holdout.push(row)
                 continue
             if self.recent.n == self.recent.capacity and self.config.reservoir_size > 0:
                 self._to_reservoir(self.recent.rows[self.recent.head].copy())
@@ -245,7 +250,12 @@ class Adapter:
         """The set-up changed at ``t`` [s]: adapt eagerly, forget the old regime's samples."""
         self._eager_until = t + self.config.eager_s
         self._next_round = t
-        self.holdout.clear()
+        self._holdout.clear()
+
+    @property
+    def holdout(self) -> np.ndarray:
+        """The held-out rows, oldest first."""
+        return self._holdout.rows[self._holdout.order()]
 
     def eager(self, t: float) -> bool:
         return t < self._eager_until
@@ -346,22 +356,23 @@ class Adapter:
             x, s, _ = self._split(rows)
             self.corr = zero_corr(self.corr_config, x.numpy(), s.numpy(), self.config.seed,
                                   self.normalisation)
-        holdout = np.stack(self.holdout) if len(self.holdout) >= 16 else None
         scaling = self._round_scaling()
-        for ring in (self.recent, self.reservoir):
+        for ring in (self.recent, self.reservoir, self._holdout):
             ring.normalise(scaling, self._net_rows)
+        n_holdout = self._holdout.n if self._holdout.n >= 16 else 0
         # Adam as torch.optim.Adam, on NumPy (models/estimator/corr_finetune.py: ~10x faster
         # per step at this size, where torch's dispatch costs more than the arithmetic). The
         # tuner starts from a copy of the serving net's weights.
         tuner = CorrFineTuner(self.corr.net, lr=c.lr, weight_decay=c.weight_decay)
-        if holdout is not None:
-            h_inp, h_target = self._net_io(holdout, scaling, tensors=False)
+        if n_holdout:
+            order = self._holdout.order()
+            h_inp, h_target = self._holdout.inp[order], self._holdout.target[order]
             before = _rmse_mean(tuner.forward(h_inp), h_target)
         for _ in range(c.round_steps):
             tuner.step(*self._batch(c.batch_size), with_loss=False)
         self.rounds += 1
         n_train = self.recent.n + self.reservoir.n
-        if holdout is None:
+        if not n_holdout:
             return RoundResult(t, False, self.version, float("nan"), float("nan"), n_train, 0,
                                eager)
         after = _rmse_mean(tuner.forward(h_inp), h_target)
@@ -373,5 +384,5 @@ class Adapter:
             self.corr = candidate.eval()
             self.version += 1
             self.accepted += 1
-        return RoundResult(t, accepted, self.version, before, after, n_train, len(holdout),
+        return RoundResult(t, accepted, self.version, before, after, n_train, n_holdout,
                            eager, state_to_numpy(candidate) if accepted else None)

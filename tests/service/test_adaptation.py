@@ -67,3 +67,33 @@ def test_drift_makes_rounds_eager_and_restarts_the_holdout():
     assert r is not None and r.eager
     assert adapter.round(3.0) is not None                 # eager: every second
     assert not adapter.eager(2.0 + cfg.eager_s + 1)
+
+
+def test_rounds_train_on_the_buffer_rows_normalised_once():
+    """The rings keep their rows' network input and target: a mini-batch drawn from them is,
+    to the bit, the raw rows at the same draws normalised then, after the reservoir has been
+    overwritten and the holdout cleared; the holdout keeps the newest rows, oldest first."""
+    cfg = AdaptationConfig(min_train_samples=200, recent_size=300, reservoir_size=200,
+                           holdout_size=50, round_steps=3)
+    adapter = Adapter(cfg)
+    w, s, m = samples(1200, seed=4)
+    adapter.add(w[:700], s[:700], m[:700])
+    assert adapter.round(0.0) is not None
+    adapter.on_drift(1.0)
+    adapter.add(w[700:], s[700:], m[700:])               # more evictions and replacements
+    assert adapter.round(1.0) is not None
+    rows = np.concatenate([w.reshape(1200, -1), s, m], axis=1).astype(np.float32)
+    held = rows[np.arange(1200) % cfg.holdout_every == cfg.holdout_every - 1]
+    np.testing.assert_array_equal(adapter.holdout, held[-cfg.holdout_size:])
+    state = adapter._rng.bit_generator.state
+    inp, target = adapter._batch(cfg.batch_size)
+    rng = np.random.default_rng()
+    rng.bit_generator.state = state
+    n_recent = int(round(cfg.batch_size * cfg.recent_fraction))
+    raw = np.concatenate([
+        adapter.recent.data()[rng.integers(0, adapter.recent.n, n_recent)],
+        adapter.reservoir.data()[rng.integers(0, adapter.reservoir.n,
+                                              cfg.batch_size - n_recent)]])
+    want_inp, want_target = adapter._net_io(raw, adapter._scaling(adapter.corr), tensors=False)
+    np.testing.assert_array_equal(inp, want_inp)
+    np.testing.assert_array_equal(target, want_target)
