@@ -22,11 +22,13 @@ gives the streaming path's numbers bit for bit (a parity test checks it).
 
 from __future__ import annotations
 
+import threading
 import time
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
 import numpy as np
+import torch
 
 from models.errors import ConfigError
 from models.estimator.estimator import EstimatorOutput, TwoStepEstimator
@@ -38,6 +40,11 @@ from service.adaptation import normalisation_of
 from service.pipeline import ArmPipeline, Event, PipelineConfig
 from service.replay_source import joint_state_messages
 from service.replay_worker import WorkerAdaptation
+
+
+#: Rows per torch step-1 call, in order (the last repeats): small first, so the replay can
+#: start while the rest is computed.
+STEP1_CHUNKS = (256, 512, 1024, 2048)
 
 
 class BatchedEstimator(TwoStepEstimator):
@@ -69,23 +76,78 @@ class BatchedEstimator(TwoStepEstimator):
         starts = segment_starts(self.t, self.config.max_gap_s)
         self.restarted = np.zeros(n, dtype=bool)
         self.restarted[starts] = True
+        self._n = n                                      # per-sample look-ups as Python lists
+        self._t_list = self.t.tolist()
+        self._restarted_list = self.restarted.tolist()
         self.segment_start = starts[np.searchsorted(starts, np.arange(n), side="right") - 1] \
             if n else np.zeros(0, dtype=np.int64)
         # (N, 6) step-1 torques, float32 like the streaming kernel's output
         self.step1 = np.zeros((n, N_JOINTS), dtype=np.float32)
-        stops = np.append(starts[1:], n)
-        for a, b in zip(starts.tolist(), stops.tolist()):
-            if step1 == "torch":
+        self._segments = list(zip(starts.tolist(), np.append(starts[1:], n).tolist()))
+        self._ready = 0                         # step-1 rows computed so far
+        self._thread: threading.Thread | None = None
+        self._stop = False
+        self._failure: BaseException | None = None
+        self._progress = threading.Condition()
+        if step1 == "torch" and not self.free_space.training:
+            # torch's LSTM releases the GIL: computed on a thread while the replay runs
+            self._thread = threading.Thread(target=self._torch_step1, daemon=True,
+                                            name="wrenchd-replay-step1")
+            self._thread.start()
+        elif step1 == "torch":
+            for a, b in self._segments:
                 self.step1[a:b] = self.free_space.predict_sequence(self.features[a:b])
-            else:                 # the streaming kernel, the same calls as step_one makes
+            self._ready = n
+        else:
+            for a, b in self._segments:   # the streaming kernel, the same calls as step_one
                 kernel, state = self._recurrent, self._recurrent.initial_state(1)
                 for k in range(a, b):
                     y, state = kernel.step(self.features[k][None, :], state)
                     self.step1[k] = y[0]
+            self._ready = n
         self.gain = self._wrench_gains()                                   # (N, 6, 6)
         self.cursor = 0
         self._b0 = self._b1 = 0
         self._blk: tuple[np.ndarray, ...] = ()
+
+    def _torch_step1(self) -> None:
+        """Step 1 by torch, segment by segment, each in chunks of :data:`STEP1_CHUNKS` rows
+        carrying the LSTM states: bit for bit :meth:`FreeSpaceModel.predict_sequence` of the
+        whole segment (tested). Publishes progress in ``_ready``."""
+        fs = self.free_space
+        try:
+            with torch.inference_mode():
+                for a, b in self._segments:
+                    states, k, sizes = None, a, iter(STEP1_CHUNKS)
+                    while k < b and not self._stop:
+                        stop = min(b, k + next(sizes, STEP1_CHUNKS[-1]))
+                        x = torch.as_tensor(self.features[k:stop], dtype=fs.in_mean.dtype)
+                        ys, states = fs.forward_normalised(x[None], states)
+                        y = torch.cat(ys, dim=-1) * fs.out_std + fs.out_mean
+                        self.step1[k:stop] = y[0].to(torch.float64).numpy()
+                        k = stop
+                        with self._progress:
+                            self._ready = k
+                            self._progress.notify_all()
+        except BaseException as exc:  # noqa: BLE001 - raised on the replay's thread
+            with self._progress:
+                self._failure = exc
+                self._progress.notify_all()
+
+    def _wait_step1(self, stop: int) -> None:
+        """Block until step-1 rows up to ``stop`` are computed."""
+        with self._progress:
+            while self._ready < stop and self._failure is None:
+                self._progress.wait()
+        if self._failure is not None:
+            raise RuntimeError("batched replay: step 1 failed") from self._failure
+
+    def close(self) -> None:
+        """Stop and join the step-1 thread (before anything forks again)."""
+        self._stop = True
+        if self._thread is not None:
+            self._thread.join()
+            self._thread = None
 
     def _wrench_gains(self) -> np.ndarray:
         """Per sample, the linear map external torque -> wrench of the damped ``J^-T``."""
@@ -114,6 +176,8 @@ class BatchedEstimator(TwoStepEstimator):
     def _compute_block(self, i: int) -> None:
         w = self.correction.window
         b1 = min(i + self.block, len(self.t))
+        if self._ready < b1:
+            self._wait_step1(b1)
         rows = np.arange(i, b1)
         idx = rows[:, None] - (w - 1) + np.arange(w)[None, :]
         idx = np.maximum(idx, self.segment_start[rows][:, None])
@@ -122,21 +186,20 @@ class BatchedEstimator(TwoStepEstimator):
         external = self.effort[i:b1] - predicted
         wrench = np.einsum("nij,nj->ni", self.gain[i:b1], external)
         self._b0, self._b1 = i, b1
-        self._blk = (windows, predicted, external, wrench)
+        self._blk = (windows, predicted, external, wrench, self.step1[i:b1].astype(np.float64))
 
     def step_one(self, t, q, dq, tau_measured) -> EstimatorOutput:
         i = self.cursor
-        if i >= len(self.t) or self.t[i] != t:
+        if i >= self._n or self._t_list[i] != t:
             raise ConfigError(f"batched replay: sample at t={t} s is not the next precomputed "
                               f"one; the pipeline accepted samples the pre-pass did not expect")
         self.cursor = i + 1
         if not self._b0 <= i < self._b1:
             self._compute_block(i)
         k = i - self._b0
-        windows, predicted, external, wrench = self._blk
+        windows, predicted, external, wrench, step1 = self._blk
         return EstimatorOutput(float(t), predicted[k], external[k], wrench[k],
-                               bool(self.restarted[i]), self.step1[i].astype(np.float64),
-                               windows[k])
+                               self._restarted_list[i], step1[k], windows[k])
 
     def swap_correction(self, correction) -> None:
         super().swap_correction(correction)
@@ -222,6 +285,8 @@ def replay(session: Session, free_space: FreeSpaceModel, config: PipelineConfig 
         return _run(pipeline, session, msgs, config, policy, batched, block, step1,
                     pipeline_hook, adaptation, result_delay_s)
     finally:
+        if isinstance(pipeline.estimator, BatchedEstimator):
+            pipeline.estimator.close()
         pipeline.close()
 
 

@@ -98,7 +98,7 @@ class WorkerAdaptation:
         self.process.start()
         child.close()
         k = config.window * 12
-        self._cols = (k, k + N_JOINTS)          # row layout: window, step-1, measured
+        self._window_cols = k                   # row layout: window, step-1, measured
         self._rows = np.zeros((256, k + 2 * N_JOINTS), dtype=np.float32)
         self._n_rows = 0                        # rows offered in this chunk
         self._pending = 0                       # of which offered since the last call
@@ -121,11 +121,9 @@ class WorkerAdaptation:
             grown = np.zeros((max(2 * len(self._rows), b), self._rows.shape[1]), np.float32)
             grown[:a] = self._rows[:a]
             self._rows = grown
-        k, m = self._cols
-        rows = self._rows
-        rows[a:b, :k] = np.reshape(windows, (n, k))     # cast to float32 as Adapter.add
-        rows[a:b, k:m] = step1
-        rows[a:b, m:] = measured
+        # one copy into the chunk, cast to float32 as Adapter.add casts
+        np.concatenate((windows.reshape(n, self._window_cols), step1, measured), axis=1,
+                       out=self._rows[a:b])
         self._n_rows = b
         self._pending += n
 

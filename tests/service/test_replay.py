@@ -17,9 +17,9 @@ from adapters.messages import encode_joint_state
 from models.errors import ConfigError
 from models.estimator.pretrained import load_pretrained
 from service.adaptation import AdaptationConfig
-from service.pipeline import PipelineConfig
+from service.pipeline import ArmPipeline, PipelineConfig
 from service.policies import Policy, get_policy, policy_names, register_policy
-from service.replay import replay
+from service.replay import STEP1_CHUNKS, BatchedEstimator, replay
 from service.replay_metrics import replay_metrics
 from service.replay_output import write_replay_mcap
 from service.replay_source import load_session
@@ -172,3 +172,26 @@ def test_worker_adaptation_replays_the_inline_calls(fs, contact_session):
     delayed = replay(contact_session, fs, cfg, adaptation="worker", result_delay_s=1.0)
     first = lambda r: r.t[np.argmax(r.model_version > 0)]  # noqa: E731
     assert first(delayed) >= first(inline) + 1.0 - 1e-9
+
+
+def test_batched_step1_on_a_thread_equals_one_torch_call(fs, contact_session):
+    """Step 1 computed on a thread in chunks (LSTM states carried) is, bit for bit, one
+    ``predict_sequence`` over each gap-free segment; the replay waits for rows it needs."""
+    js = contact_session.joint_states
+    n = sum(STEP1_CHUNKS) + 300                           # every chunk size, then a repeat
+    t = np.arange(n) / 200.0
+    t[n // 2:] += 1.0                                     # a gap: two segments
+    feats = np.tile(np.concatenate([js.position, js.velocity], axis=1), (3, 1))[:n]
+    effort = np.tile(js.effort, (3, 1))[:n]
+    base = ArmPipeline("PSM1", fs, BASE).estimator
+    est = BatchedEstimator(base, t, feats, effort, step1="torch")
+    try:
+        first = est.step_one(t[0], None, None, None)     # waits for its block's rows only
+        est._wait_step1(n)
+    finally:
+        est.close()
+    want = np.concatenate([fs.predict_sequence(feats[:n // 2]),
+                           fs.predict_sequence(feats[n // 2:])]).astype(np.float32)
+    np.testing.assert_array_equal(est.step1, want)
+    np.testing.assert_array_equal(first.step1_torque, want[0].astype(np.float64))
+    assert est.restarted[[0, n // 2]].all() and est.restarted.sum() == 2
