@@ -49,9 +49,11 @@ class CorrFineTuner:
         # All parameters (and their gradients and moments) are views of one flat buffer each,
         # so an Adam update is a few operations on one array, not a few per tensor.
         self.flat = np.zeros(sum(sizes), dtype=np.float32)
-        self.grad = np.zeros_like(self.flat)
-        self.m = np.zeros_like(self.flat)
-        self.v = np.zeros_like(self.flat)
+        # gradient and its square, first and second moments: stacked pairs, so the two
+        # moment updates are one operation each (the same float32 operations per element)
+        self._g_pair = np.zeros((2, len(self.flat)), dtype=np.float32)
+        self._moments = np.zeros_like(self._g_pair)
+        self.grad, self.m, self.v = self._g_pair[0], self._moments[0], self._moments[1]
         offsets = np.cumsum([0] + sizes)
         self.params = [self.flat[a:b].reshape(sh) for a, b, sh in
                        zip(offsets[:-1], offsets[1:], shapes)]
@@ -67,7 +69,10 @@ class CorrFineTuner:
         self.eps = float(eps)
         self.steps = 0
         self._tmp = np.zeros_like(self.flat)          # Adam's scratch, reused every step
+        self._tmp_pair = np.zeros_like(self._g_pair)
         self._denom = np.zeros_like(self.flat)
+        self._decay = np.array([[betas[0]], [betas[1]]], dtype=np.float32)
+        self._gain = np.array([[1.0 - betas[0]], [1.0 - betas[1]]], dtype=np.float32)
         self._ws: dict[str, np.ndarray] | None = None
 
     def forward(self, inp: np.ndarray) -> np.ndarray:
@@ -132,13 +137,10 @@ class CorrFineTuner:
         if self.weight_decay:
             np.multiply(self.flat, np.float32(self.weight_decay), out=tmp)
             g += tmp
-        m *= b1
-        np.multiply(g, 1.0 - b1, out=tmp)
-        m += tmp
-        v *= b2
-        g *= g
-        np.multiply(g, 1.0 - b2, out=tmp)
-        v += tmp
+        np.multiply(g, g, out=self._g_pair[1])
+        self._moments *= self._decay                  # m *= b1; v *= b2
+        np.multiply(self._g_pair, self._gain, out=self._tmp_pair)
+        self._moments += self._tmp_pair               # m += (1 - b1) g; v += (1 - b2) g^2
         np.sqrt(v, out=denom)
         denom /= root_bc2
         denom += self.eps

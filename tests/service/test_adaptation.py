@@ -3,7 +3,7 @@
 import numpy as np
 import torch
 
-from service.adaptation import AdaptationConfig, Adapter
+from service.adaptation import AdaptationConfig, Adapter, _lemire_draws
 
 
 def samples(n: int, seed: int = 0, gain: float = 0.3):
@@ -97,3 +97,23 @@ def test_rounds_train_on_the_buffer_rows_normalised_once():
     want_inp, want_target = adapter._net_io(raw, adapter._scaling(adapter.corr), tensors=False)
     np.testing.assert_array_equal(inp, want_inp)
     np.testing.assert_array_equal(target, want_target)
+
+
+def test_a_round_draws_its_batches_as_successive_integers_calls():
+    """All of a round's mini-batch indices in one vectorised pass: the numbers and the
+    generator's state after them are those of the successive ``integers`` calls; where
+    Lemire's method would re-draw, nothing is drawn (the round falls back to the calls)."""
+    for seed, pre in ((0, 0), (1, 1), (2, 5)):
+        a, b = np.random.default_rng(seed), np.random.default_rng(seed)
+        a.integers(0, 3, pre)
+        b.integers(0, 3, pre)
+        calls = [(2999, 77), (6000, 51)] * 40
+        got = _lemire_draws(b, calls)
+        want = np.concatenate([a.integers(0, n, k) for n, k in calls])
+        np.testing.assert_array_equal(got, want)
+        np.testing.assert_array_equal(a.integers(0, 10 ** 6, 7), b.integers(0, 10 ** 6, 7))
+    rng = np.random.default_rng(3)
+    state = rng.bit_generator.state
+    assert _lemire_draws(rng, [(2 ** 31 + 1, 64)]) is None   # ~half of the draws re-draw
+    assert rng.bit_generator.state == state
+    assert _lemire_draws(rng, [(1, 4)]) is None               # integers draws nothing there
