@@ -65,10 +65,11 @@ def run(kind: str, json_path: str | None, duration_s: float, arms: int = 1,
         result = bench_inference(duration_s=duration_s)
     elif kind == "arm":
         result = bench_arm_thread(duration_s=duration_s)
-    elif kind in ("service", "soak"):
+    elif kind in ("service", "soak", "floor"):
         from service.bench_service import bench_service
 
-        result = bench_service(n_arms=arms, rate_hz=rate_hz, duration_s=duration_s)
+        result = bench_service(n_arms=arms, rate_hz=rate_hz, duration_s=duration_s,
+                               floor=kind == "floor")
     elif kind == "replay":
         from service.replay_cmd import run_replay_bench
 

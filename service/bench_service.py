@@ -104,11 +104,13 @@ def _drain(stream, path: Path) -> threading.Thread:
 
 def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 20.0,
                   warmup_s: float = 3.0, adaptation: bool = True,
-                  log: bool = True) -> dict[str, Any]:
+                  log: bool = True, floor: bool = False) -> dict[str, Any]:
     """Run the benchmark; returns the result dictionary.
 
     Also samples the daemon's resident memory (with its worker) once a second: the soak run
-    is this benchmark with a long ``duration_s`` (``wrenchd bench soak``)."""
+    is this benchmark with a long ``duration_s`` (``wrenchd bench soak``). With ``floor``
+    the daemon is replaced by :mod:`service.bench_floor` (its plumbing without estimation:
+    ``wrenchd bench floor``)."""
     from adapters.sim.scenarios import run_scenario
     from adapters.sim.simulator import SimulatorConfig
 
@@ -128,9 +130,11 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
     endpoint = f"tcp/127.0.0.1:{_free_port()}"
     workdir = Path(tempfile.mkdtemp(prefix="wrenchd-bench-"))
     _config(workdir / "bench.toml", endpoint, arms, workdir / "logs", adaptation, log)
-    daemon = subprocess.Popen([sys.executable, "-m", "service.cli", "serve", "--config",
-                               str(workdir / "bench.toml")], stdout=subprocess.PIPE,
-                              stderr=subprocess.PIPE, text=True)
+    command = ([sys.executable, "-m", "service.bench_floor", "--listen", endpoint, "--arms",
+                *arms] if floor else
+               [sys.executable, "-m", "service.cli", "serve", "--config",
+                str(workdir / "bench.toml")])
+    daemon = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     sent_ns = {arm: np.zeros(n, dtype=np.int64) for arm in arms}
     received: dict[str, list[tuple[int, bytes]]] = {arm: [] for arm in arms}
     session = None
@@ -257,5 +261,7 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
             "dropped": int(sum(a["missing"] for a in per_arm.values())),
             "rate_hz": float(np.median([a["rate_hz"] for a in per_arm.values()])),
             "arms": n_arms, "target_rate_hz": rate_hz, "duration_s": duration_s,
-            "warmup_s": warmup_s, "cpu_count": os.cpu_count(), "adaptation": adaptation,
-            "mcap_log": log, "per_arm": per_arm}
+            "warmup_s": warmup_s, "cpu_count": os.cpu_count(),
+            "adaptation": adaptation and not floor, "mcap_log": log and not floor,
+            "daemon": "bench floor (no estimation)" if floor else "wrenchd serve",
+            "per_arm": per_arm}

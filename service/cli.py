@@ -125,7 +125,8 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     from service.bench import run
 
     if args.duration is None:
-        args.duration = {"service": 20.0, "arm": 20.0, "soak": 1800.0}.get(args.kind, 60.0)
+        args.duration = {"service": 20.0, "floor": 20.0, "arm": 20.0,
+                         "soak": 1800.0}.get(args.kind, 60.0)
     return run(args.kind, args.json, args.duration, args.arms, args.rate)
 
 
@@ -208,11 +209,14 @@ def build_parser() -> argparse.ArgumentParser:
     ech.set_defaults(func=_cmd_echo)
 
     bench = sub.add_parser("bench", help="measure speed (medians and percentiles, one run)")
-    bench.add_argument("kind", choices=["inference", "arm", "service", "soak", "replay"],
+    bench.add_argument("kind", choices=["inference", "arm", "service", "soak", "floor",
+                                        "replay"],
                        help="inference: estimator step; arm: per-sample cost of the daemon's "
                             "work for one arm without zenoh; service: daemon end to end over loopback "
                             "zenoh; soak: the same for --duration (default 1800 s) with its "
-                            "memory; replay: replay throughput")
+                            "memory; floor: the service bench against the daemon's plumbing "
+                            "without estimation (this machine's latency floor); replay: "
+                            "replay throughput")
     bench.add_argument("--json", help="also write the result to this file")
     bench.add_argument("--duration", type=float, default=None,
                        help="inference/replay: session length [s] (60); service: measured [s] (20)")
