@@ -188,7 +188,7 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
                "wall": time.monotonic()}
         time.sleep(2.0)                                     # the last wrenches come back
         gc.enable()
-        for arm in arms:
+        for arm in arms if not floor else []:          # the floor answers no status
             replies = list(session.get(f"dvrk/{arm}/wrenchd/status", timeout=5.0))
             ok = [r.ok for r in replies if r.ok is not None]
             status[arm] = json.loads(ok[0].payload.to_bytes()) if ok else {}
