@@ -46,7 +46,6 @@ def _serve(conn, config: dict[str, Any], normalisation: dict[str, np.ndarray] | 
             if chunk is None:
                 return
             rows, kinds, times, counts, tail = chunk
-            results = []
             done = -np.inf
             a = 0
             for kind, t, count in zip(kinds, times, counts):
@@ -55,16 +54,16 @@ def _serve(conn, config: dict[str, Any], normalisation: dict[str, np.ndarray] | 
                     a += count
                 if kind == TICK:
                     result = adapter.round(t)
-                    if result is not None:
-                        results.append(result)
                     done = t
+                    if result is not None:   # at once: the pipeline may be waiting for it
+                        conn.send(("round", done, [result]))
                 elif kind == DRIFT:
                     adapter.on_drift(t)
                 elif kind == RESET:
                     adapter = Adapter(adapter.config, normalisation=adapter.normalisation)
             if tail:
                 adapter.add_rows(rows[a:a + tail])
-            conn.send(("progress", done, results))
+            conn.send(("chunk", done, []))
     except Exception:  # noqa: BLE001 - reported to the pipeline, which raises it
         conn.send(("error", traceback.format_exc(limit=8), []))
     except KeyboardInterrupt:
@@ -185,8 +184,9 @@ class WorkerAdaptation:
     def _receive(self, block: bool) -> None:
         while self._in_flight and (block or self._conn.poll()):
             kind, value, results = self._conn.recv()
-            self._in_flight -= 1
-            if kind == "error":
+            if kind == "chunk":             # the end of a chunk; "round": one round's result
+                self._in_flight -= 1
+            elif kind == "error":
                 raise RuntimeError(f"replay adaptation worker failed:\n{value}")
             if value > self._done:
                 self._done = value
