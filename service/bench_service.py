@@ -42,8 +42,12 @@ def _free_port() -> int:
 
 
 def _config(path: Path, endpoint: str, arms: list[str], log_dir: Path,
-            adaptation: bool = True, log: bool = True) -> None:
-    lines = ['robot = "external"', "[zenoh]", f'listen = ["{endpoint}"]', "[log]",
+            adaptation: bool = True, log: bool = True,
+            pin: tuple[list[int], list[int]] | None = None) -> None:
+    lines = ['robot = "external"']
+    if pin is not None:
+        lines += ["[cpus]", f"daemon = {pin[0]}", f"worker = {pin[1]}"]
+    lines += ["[zenoh]", f'listen = ["{endpoint}"]', "[log]",
              f'directory = "{log_dir}"', f"enabled = {str(log).lower()}", "[ring]",
              "capacity = 4000"]
     for arm in arms:
@@ -104,13 +108,14 @@ def _drain(stream, path: Path) -> threading.Thread:
 
 def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 20.0,
                   warmup_s: float = 3.0, adaptation: bool = True,
-                  log: bool = True, floor: bool = False) -> dict[str, Any]:
+                  log: bool = True, floor: bool = False, pin: bool = False) -> dict[str, Any]:
     """Run the benchmark; returns the result dictionary.
 
     Also samples the daemon's resident memory (with its worker) once a second: the soak run
     is this benchmark with a long ``duration_s`` (``wrenchd bench soak``). With ``floor``
     the daemon is replaced by :mod:`service.bench_floor` (its plumbing without estimation:
-    ``wrenchd bench floor``)."""
+    ``wrenchd bench floor``). With ``pin`` the daemon gets the last CPU to itself and its
+    worker and this process share the others (the daemon's ``cpus`` settings)."""
     from adapters.sim.scenarios import run_scenario
     from adapters.sim.simulator import SimulatorConfig
 
@@ -129,12 +134,21 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
                                    js.velocity[i % m], js.effort[i % m]) for i in range(n)]
     endpoint = f"tcp/127.0.0.1:{_free_port()}"
     workdir = Path(tempfile.mkdtemp(prefix="wrenchd-bench-"))
-    _config(workdir / "bench.toml", endpoint, arms, workdir / "logs", adaptation, log)
+    placement = None
+    if pin:
+        cpus = sorted(os.sched_getaffinity(0))
+        if len(cpus) < 2:
+            raise RuntimeError("--pin needs at least two CPUs")
+        placement = ([cpus[-1]], cpus[:-1])
+        os.sched_setaffinity(0, placement[1])
+    _config(workdir / "bench.toml", endpoint, arms, workdir / "logs", adaptation, log, placement)
     command = ([sys.executable, "-m", "service.bench_floor", "--listen", endpoint, "--arms",
                 *arms] if floor else
                [sys.executable, "-m", "service.cli", "serve", "--config",
                 str(workdir / "bench.toml")])
-    daemon = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    daemon = subprocess.Popen(
+        command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        preexec_fn=(lambda: os.sched_setaffinity(0, placement[0])) if placement else None)
     sent_ns = {arm: np.zeros(n, dtype=np.int64) for arm in arms}
     received: dict[str, list[tuple[int, bytes]]] = {arm: [] for arm in arms}
     session = None
@@ -264,4 +278,6 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
             "warmup_s": warmup_s, "cpu_count": os.cpu_count(),
             "adaptation": adaptation and not floor, "mcap_log": log and not floor,
             "daemon": "bench floor (no estimation)" if floor else "wrenchd serve",
+            "cpus": ({"daemon": placement[0], "worker_and_bench": placement[1]}
+                     if placement else None),
             "per_arm": per_arm}

@@ -127,7 +127,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     if args.duration is None:
         args.duration = {"service": 20.0, "floor": 20.0, "arm": 20.0,
                          "soak": 1800.0}.get(args.kind, 60.0)
-    return run(args.kind, args.json, args.duration, args.arms, args.rate)
+    return run(args.kind, args.json, args.duration, args.arms, args.rate, args.pin)
 
 
 #: Modules that add their own sub-commands: each has ``register(subparsers)``, which adds a
@@ -222,6 +222,9 @@ def build_parser() -> argparse.ArgumentParser:
                        help="inference/replay: session length [s] (60); service: measured [s] (20)")
     bench.add_argument("--arms", type=int, default=1, help="service: arms at once (PSM1..)")
     bench.add_argument("--rate", type=float, default=1000.0, help="service: rate per arm [Hz]")
+    bench.add_argument("--pin", action="store_true",
+                       help="service/soak/floor: the daemon on the last CPU alone, its worker "
+                            "and the bench on the others (the daemon's [cpus] settings)")
     bench.set_defaults(func=_cmd_bench)
     for module in COMMAND_MODULES:
         importlib.import_module(module).register(sub)

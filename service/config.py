@@ -13,6 +13,7 @@ or 'cdr' (got 'xml')``.
 
 from __future__ import annotations
 
+import os
 import re
 from pathlib import Path
 from typing import Any, Literal
@@ -89,6 +90,34 @@ class RingConfig(BaseModel):
                           description="queued samples; beyond, the oldest is dropped and counted")
 
 
+class CpuPlacement(BaseModel):
+    """Which CPUs the daemon and its adaptation worker may run on (Linux affinity).
+
+    A bedside machine gives the estimator a core of its own: ``daemon = [1]``,
+    ``worker = [0]`` keeps training, the robot's other software and the cache traffic they
+    bring off the core that estimates. Unset: the scheduler decides.
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    daemon: list[int] | None = Field(default=None, description="CPUs of the daemon's threads")
+    worker: list[int] | None = Field(default=None, description="CPUs of the adaptation worker")
+
+    @field_validator("daemon", "worker")
+    @classmethod
+    def _cpus(cls, value: list[int] | None) -> list[int] | None:
+        if value is None:
+            return None
+        if not value:
+            raise ValueError("an empty CPU list would leave no CPU to run on")
+        count = os.cpu_count() or 1
+        bad = [c for c in value if not 0 <= c < count]
+        if bad:
+            raise ValueError(f"CPUs {bad} do not exist on this machine (it has {count}: "
+                             f"0..{count - 1})")
+        return sorted(set(value))
+
+
 class ServiceSettings(BaseSettings):
     """Everything ``wrenchd serve`` needs (see the module docstring for the sources)."""
 
@@ -106,6 +135,7 @@ class ServiceSettings(BaseSettings):
     models_dir: str | None = Field(default=None,
                                    description="adapted Corr versions (default: log dir/models)")
     status_interval_s: float = Field(default=1.0, gt=0.0, description="status log period [s]")
+    cpus: CpuPlacement = Field(default_factory=CpuPlacement)
     duration_s: float | None = Field(default=None, gt=0.0, description="stop after [s]")
 
     @model_validator(mode="after")

@@ -26,6 +26,7 @@ session is closed.
 from __future__ import annotations
 
 import gc
+import os
 import queue
 import signal
 import subprocess
@@ -381,6 +382,10 @@ class Daemon:
         # The zenoh callback threads and the estimation threads share the GIL; at the default
         # 5 ms switch interval a sample could wait that long for its thread to run.
         sys.setswitchinterval(SWITCH_INTERVAL_S)
+        if s.cpus.daemon is not None:
+            # before any thread or process is made: they all inherit it (the worker resets
+            # its own when cpus.worker is set)
+            os.sched_setaffinity(0, s.cpus.daemon)
         adapt = {a.name: a.pipeline.adaptation for a in s.arms
                  if a.pipeline.adaptation.enabled and a.pipeline.policy.name != "frozen"}
         loaded: dict[str, FreeSpaceModel] = {}           # one copy of each distinct model
@@ -390,7 +395,8 @@ class Daemon:
         if adapt:
             frac = min(c.max_cpu_fraction for c in adapt.values())
             norms = {name: normalisation_of(self.models[name]) for name in adapt}
-            self.worker = WorkerProcess(adapt, s.effective_models_dir(), frac, norms)
+            self.worker = WorkerProcess(adapt, s.effective_models_dir(), frac, norms,
+                                        cpus=s.cpus.worker)
         self.session = open_session(s.zenoh)
         try:
             for cfg in s.arms:

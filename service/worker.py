@@ -36,8 +36,10 @@ _POLL_S = 0.02          # and look for round results at most this often [s]: pol
 
 def _run(inbox: mp.Queue, outbox: mp.Queue, configs: dict[str, dict[str, Any]],
          normalisations: dict[str, dict[str, np.ndarray]], models_dir: str | None,
-         max_cpu_fraction: float) -> None:
+         max_cpu_fraction: float, cpus: list[int] | None = None) -> None:
     """Worker process main loop."""
+    if cpus is not None:
+        os.sched_setaffinity(0, cpus)
     import torch
 
     from models.estimator.checkpoint import save_checkpoint
@@ -122,14 +124,15 @@ class WorkerProcess:
 
     def __init__(self, configs: dict[str, AdaptationConfig], models_dir: str | None,
                  max_cpu_fraction: float = 0.5,
-                 normalisations: dict[str, dict[str, np.ndarray]] | None = None) -> None:
+                 normalisations: dict[str, dict[str, np.ndarray]] | None = None,
+                 cpus: list[int] | None = None) -> None:
         ctx = mp.get_context("spawn")
         self.inbox: mp.Queue = ctx.Queue()
         self.outbox: mp.Queue = ctx.Queue()
         self.process = ctx.Process(
             target=_run, name="wrenchd-adaptation", daemon=True,
             args=(self.inbox, self.outbox, {a: c.model_dump() for a, c in configs.items()},
-                  normalisations or {}, models_dir, max_cpu_fraction))
+                  normalisations or {}, models_dir, max_cpu_fraction, cpus))
         self.process.start()
         self._results: dict[str, list[tuple[str, Any]]] = {arm: [] for arm in configs}
 
