@@ -263,16 +263,22 @@ class ArmRuntime:
             decoded = [d for d in decoded if d[2] is not None]
             results = self.pipeline.process_many([d[2] for d in decoded])
         except Exception as exc:  # noqa: BLE001 - never let one batch kill the arm
-            ev = self.pipeline.reject(time.time(), "internal", f"{type(exc).__name__}: {exc}")
-            self._publish_events([ev])
+            self.internal_error(exc)
             return
         for (arrived_ns, payload, msg), (est, events) in zip(decoded, results):
-            try:
-                self._emit(arrived_ns, payload, msg, est, events)
-            except Exception as exc:  # noqa: BLE001
-                ev = self.pipeline.reject(time.time(), "internal",
-                                          f"{type(exc).__name__}: {exc}")
-                self._publish_events([ev])
+            self.emit_safe(arrived_ns, payload, msg, est, events)
+
+    def internal_error(self, exc: Exception) -> None:
+        """A bug met on this arm's path: a counted ``internal`` error event, never a crash."""
+        ev = self.pipeline.reject(time.time(), "internal", f"{type(exc).__name__}: {exc}")
+        self._publish_events([ev])
+
+    def emit_safe(self, arrived_ns: int, payload: bytes, msg, est: Estimate | None,
+                  events: list[Event]) -> None:
+        try:
+            self._emit(arrived_ns, payload, msg, est, events)
+        except Exception as exc:  # noqa: BLE001 - never let one sample kill the arm
+            self.internal_error(exc)
 
     def _emit(self, arrived_ns: int, payload: bytes, msg, est: Estimate | None,
               events: list[Event]) -> None:
@@ -304,8 +310,7 @@ class ArmRuntime:
         try:
             self.handle(arrived_ns, payload)
         except Exception as exc:  # noqa: BLE001 - never let one sample kill the arm
-            ev = self.pipeline.reject(time.time(), "internal", f"{type(exc).__name__}: {exc}")
-            self._publish_events([ev])
+            self.internal_error(exc)
 
     def housekeeping(self, now: float) -> None:
         """Once in a while: rate, status snapshot to the log and console, log problems."""
@@ -436,8 +441,9 @@ class Daemon:
 
     def _estimate(self) -> None:
         """The estimation thread: every arm's queued samples, in arrival order per arm, arms
-        taking turns, then each arm's housekeeping; until stopped (what is queued at the stop
-        is still estimated).
+        taking turns (arms of one model with one sample each are stepped together; a backlog
+        of one arm goes through in one pass), then each arm's housekeeping; until stopped
+        (what is queued at the stop is still estimated).
 
         One thread for all arms, not one each: estimation threads of one process would only
         take turns on the GIL, and each switch costs; interleaving keeps arms fair.
@@ -452,14 +458,41 @@ class Daemon:
             # arms take turns, at most BATCH samples each (samples that arrive meanwhile set
             # ``wake``); a backlog of one arm goes through its pipeline in one pass
             for k in range(0, depth, BATCH):
+                single: dict[int, list[tuple[ArmRuntime, tuple[int, bytes]]]] = {}
                 for arm, items in queued:
-                    if k < len(items):
-                        arm.handle_many(items[k:k + BATCH])
+                    chunk = items[k:k + BATCH]
+                    if len(chunk) == 1:                # arms of one model: stepped together
+                        single.setdefault(id(arm.pipeline.estimator.step1_kernel), []).append(
+                            (arm, chunk[0]))
+                    elif chunk:
+                        arm.handle_many(chunk)
+                for group in single.values():
+                    if len(group) == 1:
+                        group[0][0].handle_safe(*group[0][1])
+                    else:
+                        self._handle_joint(group)
             now = time.monotonic()
             for arm in arms:
                 arm.housekeeping(now)
             if stopping:
                 break
+
+    @staticmethod
+    def _handle_joint(group: list[tuple[ArmRuntime, tuple[int, bytes]]]) -> None:
+        """One sample of each of several arms sharing a step-1 model: their recurrences run
+        as one batch (:meth:`ArmPipeline.process_joint`), the weights read once."""
+        try:
+            decoded = [(arm, arrived_ns, payload, arm._decode(payload))
+                       for arm, (arrived_ns, payload) in group]
+            decoded = [d for d in decoded if d[3] is not None]
+            results = ArmPipeline.process_joint([d[0].pipeline for d in decoded],
+                                                [d[3] for d in decoded])
+        except Exception as exc:  # noqa: BLE001 - never let one sample kill the arms
+            for arm, _ in group:
+                arm.internal_error(exc)
+            return
+        for (arm, arrived_ns, payload, msg), (est, events) in zip(decoded, results):
+            arm.emit_safe(arrived_ns, payload, msg, est, events)
 
     def run(self, duration_s: float | None = None) -> int:
         """Start, serve until SIGINT/SIGTERM or ``duration_s``, stop cleanly. Returns 0."""

@@ -266,14 +266,7 @@ class ArmPipeline:
         admitted = self._admit(msg)
         if isinstance(admitted, list):
             return None, admitted
-        t, events, gap_s = admitted
-        try:
-            out = self.estimator.step_one(t, msg.position, msg.velocity, msg.effort)
-        except DataError as exc:                    # cannot happen after validation; be safe
-            return None, events + [self._error(t, "invalid", str(exc))]
-        est, events = self._after(msg, t, out, events, gap_s)
-        events.extend(self._adapt(t))
-        return est, events
+        return self._finish_one(msg, *admitted)
 
     #: the smallest backlog :meth:`process_many` estimates in one pass (below, one by one)
     BATCH_MIN = 6
@@ -313,6 +306,54 @@ class ArmPipeline:
         k, t = admitted[-1][0], admitted[-1][2]
         results[k][1].extend(self._adapt(t))
         return results
+
+    @staticmethod
+    def process_joint(pipelines: list[ArmPipeline], msgs: list[JointStateMsg]
+                      ) -> list[tuple[Estimate | None, list[Event]]]:
+        """One joint state for each of several arms whose estimators share their step-1
+        kernel: what ``pipelines[i].process(msgs[i])`` returns for each, the recurrences
+        stepped as one batch (:meth:`TwoStepEstimator.step_joint`, equal to float32
+        rounding)."""
+        results: list[tuple[Estimate | None, list[Event]]] = []
+        admitted = []
+        for p, msg in zip(pipelines, msgs):
+            a = p._admit(msg)
+            if isinstance(a, list):
+                results.append((None, a))
+            else:
+                admitted.append((len(results), p, msg, *a))
+                results.append((None, []))
+        if len(admitted) == 1:                      # nothing to share
+            k, p, msg, t, events, gap_s = admitted[0]
+            results[k] = p._finish_one(msg, t, events, gap_s)
+            return results
+        if not admitted:
+            return results
+        try:
+            outs = TwoStepEstimator.step_joint(
+                [a[1].estimator for a in admitted], np.array([a[3] for a in admitted]),
+                np.stack([a[2].position for a in admitted]),
+                np.stack([a[2].velocity for a in admitted]),
+                np.stack([a[2].effort for a in admitted]))
+        except DataError as exc:                    # cannot happen after validation; be safe
+            for k, p, _, t, events, _ in admitted:
+                results[k] = (None, events + [p._error(t, "invalid", str(exc))])
+            return results
+        for (k, p, msg, t, events, gap_s), out in zip(admitted, outs):
+            est, events = p._after(msg, t, out, events, gap_s)
+            events.extend(p._adapt(t))
+            results[k] = (est, events)
+        return results
+
+    def _finish_one(self, msg: JointStateMsg, t: float, events: list[Event],
+                    gap_s: float | None) -> tuple[Estimate | None, list[Event]]:
+        try:
+            out = self.estimator.step_one(t, msg.position, msg.velocity, msg.effort)
+        except DataError as exc:                    # cannot happen after validation; be safe
+            return None, events + [self._error(t, "invalid", str(exc))]
+        est, events = self._after(msg, t, out, events, gap_s)
+        events.extend(self._adapt(t))
+        return est, events
 
     def _admit(self, msg: JointStateMsg) -> tuple[float, list[Event], float | None] | list[Event]:
         """Validation and stamp order: ``(t, events, gap_s)`` of a sample to estimate (``gap_s``

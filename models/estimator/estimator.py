@@ -114,6 +114,11 @@ class TwoStepEstimator:
         self._window = HistoryWindow(self.correction.window) if self._corr is not None else None
         self.reset_state()
 
+    @property
+    def step1_kernel(self):
+        """The streaming step-1 kernel (shared by arms of one model, :meth:`share_step1`)."""
+        return self._recurrent
+
     def share_step1(self, other: TwoStepEstimator) -> None:
         """Use ``other``'s step-1 kernel (read-only weights) instead of an own copy.
 
@@ -241,6 +246,62 @@ class TwoStepEstimator:
         return [EstimatorOutput(float(t[i]), predicted[i], external[i], wrench[i],
                                 bool(restart[i]), step1[i],
                                 None if win is None else win[i]) for i in range(n)]
+
+    @staticmethod
+    def step_joint(estimators: list[TwoStepEstimator], t: np.ndarray, q: np.ndarray,
+                   dq: np.ndarray, tau_measured: np.ndarray) -> list[EstimatorOutput]:
+        """One sample of each of several streams whose estimators share one step-1 kernel
+        (:meth:`share_step1`: arms of one daemon): what :meth:`step_one` on each returns, up
+        to float32 rounding. The recurrence runs once with the streams as its batch, so the
+        step-1 weights are read once for all of them; Corr and wrench stay per stream.
+
+        Args:
+            estimators: B estimators sharing one step-1 kernel, each its own stream.
+            t: (B,) sample times [s]; q, dq, tau_measured: (B, 6), row b for estimator b.
+        Raises:
+            ConfigError: estimators that do not share their step-1 kernel.
+            DataError: wrong shapes or non-finite values (nothing is estimated then).
+        """
+        kernel = estimators[0]._recurrent
+        if any(e._recurrent is not kernel for e in estimators):
+            raise ConfigError("step_joint needs estimators sharing one step-1 kernel")
+        t = np.asarray(t, dtype=np.float64)
+        q, dq = np.asarray(q, dtype=np.float64), np.asarray(dq, dtype=np.float64)
+        tau_measured = np.asarray(tau_measured, dtype=np.float64)
+        b = len(estimators)
+        if t.shape != (b,) or not q.shape == dq.shape == tau_measured.shape == (b, N_JOINTS):
+            raise DataError(f"t must be (B,) and q, dq, tau_measured (B, 6) for B={b}; got "
+                            f"{t.shape}, {q.shape}, {dq.shape}, {tau_measured.shape}")
+        x = np.concatenate([q, dq], axis=1)
+        if not (np.isfinite(t).all() and np.isfinite(x).all()
+                and np.isfinite(tau_measured).all()):
+            raise DataError("joint state contains NaN or Inf")
+        restarted = []
+        for e, ti in zip(estimators, t.tolist()):
+            restart = e._t_last is None or not 0.0 < ti - e._t_last <= e.config.max_gap_s
+            if restart:
+                e.reset_state()
+            e._t_last = ti
+            if e._state is None:
+                e._state = kernel.initial_state(1)
+            restarted.append(restart)
+        state = tuple(np.concatenate([e._state[k] for e in estimators], axis=1)
+                      for k in range(len(estimators[0]._state)))
+        y, new = kernel.step(x, state)                              # (B, 6), batch B
+        out = []
+        for i, e in enumerate(estimators):
+            e._state = tuple(np.ascontiguousarray(s[:, i:i + 1]) for s in new)
+            yi, window = y[i:i + 1], None
+            if e._corr is not None:
+                window = e._window.push(x[i])
+                yi = e._corr.correct(window[None], yi)
+            predicted = yi[0].astype(np.float64)
+            external = tau_measured[i] - predicted
+            out.append(EstimatorOutput(float(t[i]), predicted, external,
+                                       e.wrench_map.wrench(q[i], external), restarted[i],
+                                       y[i].astype(np.float64),
+                                       None if window is None else window.copy()))
+        return out
 
     def predict_torque(self, features: np.ndarray) -> np.ndarray:
         """Predicted torques of one gap-free segment: (T, 12) -> (T, 6), from a fresh state."""

@@ -111,3 +111,77 @@ def test_a_burst_is_worked_off_in_batches_without_loss(tmp_path):
         est, _ = ref.process(decode_joint_state("json", payloads[i]))
         np.testing.assert_allclose(got[i][2], est.wrench, rtol=1e-4, atol=1e-5)
     ref.close()
+
+
+def test_two_arms_of_one_model_get_the_numbers_each_would_get_alone(tmp_path):
+    """Two arms fed together at 200 Hz (the daemon steps arms of one model as one batch):
+    every wrench comes back on each arm, equal to a one-arm pipeline's to float32 rounding
+    (the first second, before any adaptation round can change the nets)."""
+    from adapters.messages import decode_joint_state, decode_wrench
+    from models.estimator.pretrained import load_pretrained
+    from service.pipeline import ArmPipeline, PipelineConfig
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    config = tmp_path / "wrenchd.toml"
+    config.write_text(f"""
+robot = "external"
+[zenoh]
+listen = ["{endpoint}"]
+[log]
+directory = "{tmp_path / 'logs'}"
+[[arms]]
+name = "PSM1"
+[arms.pipeline]
+calibration_s = 2.0
+[[arms]]
+name = "PSM3"
+[arms.pipeline]
+calibration_s = 2.0
+""")
+    daemon = subprocess.Popen([sys.executable, "-m", "service.cli", "serve", "--config",
+                               str(config)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                              text=True)
+    sessions = {"PSM1": run_scenario("trocar", 2.0, 7).joint_states,
+                "PSM3": run_scenario("trocar", 2.0, 8).joint_states}
+    payloads = {arm: [encode_joint_state("json", int(round(js.t[i] * 1e9)), js.names,
+                                         js.position[i], js.velocity[i], js.effort[i])
+                      for i in range(len(js))] for arm, js in sessions.items()}
+    received: dict[str, list[bytes]] = {arm: [] for arm in sessions}
+    session = None
+    try:
+        for _ in sessions:
+            assert "listening" in daemon.stdout.readline()
+        session = open_session(ZenohConfig(connect=[endpoint]))
+        subs = [session.declare_subscriber(f"dvrk/{arm}/wrenchd/measured_cf",
+                                           lambda s, arm=arm: received[arm].append(
+                                               s.payload.to_bytes())) for arm in sessions]
+        pubs = {arm: session.declare_publisher(f"dvrk/{arm}/measured_js") for arm in sessions}
+        time.sleep(0.5)
+        start = time.monotonic()
+        n = len(sessions["PSM1"])
+        for i in range(n):
+            delay = start + i / 200.0 - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+            for arm in sessions:
+                pubs[arm].put(payloads[arm][i])
+        wait_for(lambda: all(len(r) >= n for r in received.values()), 20.0, "every wrench")
+        for s in subs:
+            s.undeclare()
+        for p in pubs.values():
+            p.undeclare()
+    finally:
+        if session is not None:
+            session.close()
+        daemon.send_signal(signal.SIGINT)
+        out, err = daemon.communicate(timeout=60)
+    assert daemon.returncode == 0, err
+    seal = load_pretrained("seal")
+    for arm, js in sessions.items():
+        ref = ArmPipeline(arm, seal, PipelineConfig(calibration_s=2.0))
+        got = [decode_wrench("json", p) for p in received[arm]]
+        assert [g[0] for g in got] == [int(round(t * 1e9)) for t in js.t]
+        for i in range(200):
+            est, _ = ref.process(decode_joint_state("json", payloads[arm][i]))
+            np.testing.assert_allclose(got[i][2], est.wrench, rtol=1e-4, atol=1e-5)
+        ref.close()

@@ -128,3 +128,34 @@ def test_a_backlog_processed_at_once_gives_what_one_by_one_gives(seal, trocar):
             assert (a.free, a.restarted, a.index) == (b.free, b.restarted, b.index)
             batched += 1
     assert batched == 400 - 3 and one.counters == many.counters
+
+
+def test_arms_stepped_together_give_what_each_alone_gives(seal):
+    """process_joint (three arms of one daemon sharing the step-1 kernel, recurrences as one
+    batch) against each arm's own process: equal to float32 rounding, restarts, gate verdicts
+    and refusals per arm (arm 2 gets a NaN and a gap, arm 3 starts late)."""
+    sessions = [run_scenario("trocar", 3.0, s).joint_states for s in (4, 5, 6)]
+    config = PipelineConfig(policy=PolicyConfig(name="frozen"), calibration_s=0.5)
+    alone = [ArmPipeline(f"PSM{k}", seal, config) for k in (1, 2, 3)]
+    joint = [ArmPipeline(f"PSM{k}", seal, config) for k in (1, 2, 3)]
+    for p in joint[1:]:
+        p.estimator.share_step1(joint[0].estimator)
+    compared = 0
+    for i in range(len(sessions[0])):
+        msgs = [msg(js, i) for js in sessions]
+        if i == 40:
+            msgs[1] = msg(sessions[1], i, velocity=np.full(6, np.nan))
+        if i >= 300:                                         # arm 2: a gap of 0.2 s
+            msgs[1] = msg(sessions[1], i, t=sessions[1].t[i] + 0.2)
+        arms = [0, 1] + ([2] if i >= 100 else [])
+        ref = [alone[a].process(msgs[a]) for a in arms]
+        got = ArmPipeline.process_joint([joint[a] for a in arms], [msgs[a] for a in arms])
+        for (a, ev_a), (b, ev_b) in zip(ref, got):
+            assert [e.kind for e in ev_a] == [e.kind for e in ev_b]
+            assert (a is None) == (b is None)
+            if a is not None:
+                np.testing.assert_allclose(b.wrench, a.wrench, rtol=1e-4, atol=1e-5)
+                assert (a.free, a.restarted) == (b.free, b.restarted)
+                compared += 1
+    assert compared == 3 * len(sessions[0]) - 100 - 1
+    assert [p.counters for p in alone] == [p.counters for p in joint]
