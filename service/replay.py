@@ -45,6 +45,10 @@ from service.replay_worker import WorkerAdaptation
 #: Rows per torch step-1 call, in order (the last repeats): small first, so the replay can
 #: start while the rest is computed.
 STEP1_CHUNKS = (256, 512, 1024, 2048)
+#: The thread computes at most this many rows ahead of the replay, so that it shares the
+#: second core with the adaptation worker over the whole replay instead of competing with
+#: it at the start (the rows do not depend on when they are computed).
+STEP1_LEAD = 4096
 
 
 class BatchedEstimator(TwoStepEstimator):
@@ -85,6 +89,7 @@ class BatchedEstimator(TwoStepEstimator):
         self.step1 = np.zeros((n, N_JOINTS), dtype=np.float32)
         self._segments = list(zip(starts.tolist(), np.append(starts[1:], n).tolist()))
         self._ready = 0                         # step-1 rows computed so far
+        self.cursor = 0                         # index of the next sample step_one expects
         self._thread: threading.Thread | None = None
         self._stop = False
         self._failure: BaseException | None = None
@@ -106,7 +111,6 @@ class BatchedEstimator(TwoStepEstimator):
                     self.step1[k] = y[0]
             self._ready = n
         self.gain = self._wrench_gains()                                   # (N, 6, 6)
-        self.cursor = 0
         self._b0 = self._b1 = 0
         self._blk: tuple[np.ndarray, ...] = ()
 
@@ -120,6 +124,9 @@ class BatchedEstimator(TwoStepEstimator):
                 for a, b in self._segments:
                     states, k, sizes = None, a, iter(STEP1_CHUNKS)
                     while k < b and not self._stop:
+                        if k - self.cursor > STEP1_LEAD:
+                            time.sleep(0.002)
+                            continue
                         stop = min(b, k + next(sizes, STEP1_CHUNKS[-1]))
                         x = torch.as_tensor(self.features[k:stop], dtype=fs.in_mean.dtype)
                         ys, states = fs.forward_normalised(x[None], states)

@@ -27,7 +27,7 @@ import numpy as np
 from models.series import N_JOINTS
 from service.adaptation import AdaptationConfig, RoundResult
 
-CHUNK_S = 0.1           # the pipeline sends its calls at least every this much sample time [s]
+CHUNK_S = 0.25          # the pipeline sends its calls at least every this much sample time [s]
 
 
 # The calls of a chunk, packed: the offered rows stacked in one float32 array, and per other
