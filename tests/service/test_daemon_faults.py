@@ -8,6 +8,7 @@ import sys
 import time
 
 import numpy as np
+import zenoh
 
 from adapters.mcap_session import read_session_report
 from adapters.messages import encode_joint_state
@@ -84,12 +85,18 @@ def test_a_burst_is_worked_off_in_batches_without_loss(tmp_path):
         session = open_session(ZenohConfig(connect=[endpoint]))
         sub = session.declare_subscriber("dvrk/PSM2/wrenchd/measured_cf",
                                          lambda s: received.append(s.payload.to_bytes()))
-        pub = session.declare_publisher("dvrk/PSM2/measured_js")
+        # blocking congestion control: the burst must reach the daemon (a dropping
+        # publisher would lose samples in zenoh, which this test is not about)
+        pub = session.declare_publisher("dvrk/PSM2/measured_js",
+                                        congestion_control=zenoh.CongestionControl.BLOCK)
         time.sleep(0.5)
         for p in payloads:
             pub.put(p)
-        wait_for(lambda: len(received) >= len(js), 60.0,
-                 f"every wrench ({len(js)} sent)")
+        try:
+            wait_for(lambda: len(received) >= len(js), 60.0, "every wrench")
+        except AssertionError:
+            raise AssertionError(f"{len(received)} wrenches for {len(js)} joint states; "
+                                 f"daemon: {daemon.stderr}") from None
         pub.undeclare()
         sub.undeclare()
     finally:
