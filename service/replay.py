@@ -49,6 +49,8 @@ STEP1_CHUNKS = (256, 512, 1024, 2048)
 #: second core with the adaptation worker over the whole replay instead of competing with
 #: it at the start (the rows do not depend on when they are computed).
 STEP1_LEAD = 4096
+#: Samples per chunk of wrench gains (pinocchio Jacobians, ~2 ms).
+GAIN_CHUNK = 256
 
 
 class BatchedEstimator(TwoStepEstimator):
@@ -110,7 +112,10 @@ class BatchedEstimator(TwoStepEstimator):
                     y, state = kernel.step(self.features[k][None, :], state)
                     self.step1[k] = y[0]
             self._ready = n
-        self.gain = self._wrench_gains()                                   # (N, 6, 6)
+        # (N, 6, 6) wrench gains, computed in chunks when first needed or while the replay
+        # waits for the adaptation worker (idle_work)
+        self.gain = np.zeros((n, N_JOINTS, N_JOINTS))
+        self._gain_ready = 0
         self._b0 = self._b1 = 0
         self._blk: tuple[np.ndarray, ...] = ()
 
@@ -156,9 +161,24 @@ class BatchedEstimator(TwoStepEstimator):
             self._thread.join()
             self._thread = None
 
-    def _wrench_gains(self) -> np.ndarray:
-        """Per sample, the linear map external torque -> wrench of the damped ``J^-T``."""
-        q = self.features[:, :N_JOINTS]
+    def idle_work(self) -> bool:
+        """Compute the next chunk of wrench gains ahead of need; False when all are done
+        (the replay calls it while it waits for the adaptation worker)."""
+        if self._gain_ready >= self._n:
+            return False
+        self._gains_upto(self._gain_ready + 1)
+        return True
+
+    def _gains_upto(self, stop: int) -> None:
+        while self._gain_ready < stop:
+            a = self._gain_ready
+            b = min(self._n, a + GAIN_CHUNK)
+            self.gain[a:b] = self._wrench_gains(self.features[a:b, :N_JOINTS])
+            self._gain_ready = b
+
+    def _wrench_gains(self, q: np.ndarray) -> np.ndarray:
+        """Per sample of ``q`` (M, 6), the linear map external torque -> wrench of the
+        damped ``J^-T`` (each sample's on its own: the same in any chunks)."""
         if len(q) == 0:
             return np.zeros((0, N_JOINTS, N_JOINTS))
         jac = self.wrench_map.kinematics.jacobian(q, frame="hybrid")         # (N, 6, 6)
@@ -185,6 +205,8 @@ class BatchedEstimator(TwoStepEstimator):
         b1 = min(i + self.block, len(self.t))
         if self._ready < b1:
             self._wait_step1(b1)
+        if self._gain_ready < b1:
+            self._gains_upto(b1)
         rows = np.arange(i, b1)
         idx = rows[:, None] - (w - 1) + np.arange(w)[None, :]
         idx = np.maximum(idx, self.segment_start[rows][:, None])
@@ -310,6 +332,8 @@ def _run(pipeline: ArmPipeline, session: Session, msgs, config: PipelineConfig, 
         feats = np.concatenate([js.position[keep], js.velocity[keep]], axis=1)
         pipeline.estimator = BatchedEstimator(pipeline.estimator, t, feats, js.effort[keep],
                                               block, step1)
+        if isinstance(pipeline.backend, WorkerAdaptation):
+            pipeline.backend.idle_work = pipeline.estimator.idle_work
     if pipeline_hook is not None:
         pipeline_hook(pipeline)
     n = len(msgs)

@@ -20,7 +20,7 @@ from __future__ import annotations
 import multiprocessing as mp
 import traceback
 from dataclasses import replace
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -111,6 +111,9 @@ class WorkerAdaptation:
         self._reset_t = -np.inf             # rounds due before the last reset are void
         self.errors: list[str] = []
         self.rounds_waited = 0              # times the pipeline had to wait for the worker
+        #: called while waiting for the worker, until it returns False: work of the replay's
+        #: that does not depend on the adaptation (it must not change any outcome)
+        self.idle_work: Callable[[], bool] | None = None
 
     # -- the pipeline's calls -----------------------------------------------------------
     def offer(self, windows, step1, measured) -> None:
@@ -151,7 +154,12 @@ class WorkerAdaptation:
         if self._done < need and (self._in_flight or self._kinds or self._n_rows):
             self.rounds_waited += 1
             self._send()
+            idle = self.idle_work
             while self._done < need and self._in_flight:
+                if idle is not None and not self._conn.poll():
+                    if idle():
+                        continue
+                    idle = None
                 self._receive(block=True)
         if not self._ready or self._ready[0].t > need:
             return []
