@@ -8,9 +8,11 @@ where the worker's result arrives some time after the round began, a round's res
 from ``result_delay_s`` of *simulated* time after the sample it fell due at.
 
 Deterministic: the pipeline sends the worker, in order, exactly the calls the inline backend
-would make (``offer``, ``drift``, ``tick``, ``reset``), in chunks; the worker replays them on
-its Adapter and answers with the rounds (stamped with their simulated time) and how far it
-has come. The pipeline applies a round at the first sample at or after ``t + result_delay_s``,
+would make (``offer``, ``drift``, ``tick``, ``reset``), in chunks of :data:`CHUNK_S` of
+sample time (the offered rows stacked in one float32 array; per other call its kind, time
+and the number of rows offered before it); the worker replays them on its Adapter and
+answers with each round as soon as it is done (stamped with its simulated time) and, per
+chunk, how far it has come. The pipeline applies a round at the first sample at or after ``t + result_delay_s``,
 waiting for the worker if it is not that far yet. The outcome depends only on the session,
 the config and ``result_delay_s``, never on how fast either process runs.
 """
