@@ -82,6 +82,9 @@ def _cmd_effects(args: argparse.Namespace) -> int:
 def _cmd_serve(args: argparse.Namespace) -> int:
     from service.config import load_settings
     from service.daemon import Daemon
+    from service.threads import one_compute_thread
+
+    one_compute_thread()
 
     overrides: dict = {}
     if args.log_dir:
@@ -123,6 +126,9 @@ def _cmd_echo(args: argparse.Namespace) -> int:
 
 def _cmd_bench(args: argparse.Namespace) -> int:
     from service.bench import run
+    from service.threads import one_compute_thread
+
+    one_compute_thread()           # the bench process; the daemon and worker do it themselves
 
     if args.duration is None:
         args.duration = {"service": 20.0, "floor": 20.0, "arm": 20.0,

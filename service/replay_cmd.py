@@ -44,19 +44,10 @@ def load_pipeline_config(path: str | None, seed: int | None = None):
 
 
 def _setup() -> None:
-    """One thread for torch and for NumPy's BLAS: a replay runs the pipeline and the
-    adaptation worker on two cores; BLAS threads of its own per process (OpenBLAS starts
-    one per core unless OMP_NUM_THREADS says otherwise, and NumPy is imported before a
-    command can set it) made the default replay 3x slower (2 743 vs 8 273 samples/s,
-    ``wrenchd bench replay --duration 120`` without and with OMP_NUM_THREADS=1)."""
-    import torch
+    """One thread for torch and for NumPy's BLAS (see :mod:`service.threads`)."""
+    from service.threads import one_compute_thread
 
-    torch.set_num_threads(1)
-    try:
-        from threadpoolctl import threadpool_limits   # installed with scikit-learn
-    except ImportError:                               # then OMP_NUM_THREADS=1 does it
-        return
-    threadpool_limits(1)
+    one_compute_thread()
 
 
 def _cmd_replay(args: argparse.Namespace) -> int:

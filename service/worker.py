@@ -40,12 +40,11 @@ def _run(inbox: mp.Queue, outbox: mp.Queue, configs: dict[str, dict[str, Any]],
     """Worker process main loop."""
     if cpus is not None:
         os.sched_setaffinity(0, cpus)
-    import torch
-
     from models.estimator.checkpoint import save_checkpoint
     from service.adaptation import Adapter
+    from service.threads import one_compute_thread
 
-    torch.set_num_threads(1)
+    one_compute_thread()          # a spawned process: NumPy's BLAS would start one per core
     # Ctrl-C in a terminal reaches the whole process group: the daemon stops this worker with
     # a "stop" message (and it exits by itself if the daemon dies), so it ignores the signals
     # instead of dying mid-round with a traceback.
