@@ -458,17 +458,15 @@ class Daemon:
             # arms take turns, at most BATCH samples each (samples that arrive meanwhile set
             # ``wake``); a backlog of one arm goes through its pipeline in one pass
             for k in range(0, depth, BATCH):
-                single: dict[int, list[tuple[ArmRuntime, tuple[int, bytes]]]] = {}
+                groups: dict[int, list[tuple[ArmRuntime, list[tuple[int, bytes]]]]] = {}
                 for arm, items in queued:
                     chunk = items[k:k + BATCH]
-                    if len(chunk) == 1:                # arms of one model: stepped together
-                        single.setdefault(id(arm.pipeline.estimator.step1_kernel), []).append(
-                            (arm, chunk[0]))
-                    elif chunk:
-                        arm.handle_many(chunk)
-                for group in single.values():
+                    if chunk:                          # arms of one model: stepped together
+                        groups.setdefault(id(arm.pipeline.estimator.step1_kernel), []).append(
+                            (arm, chunk))
+                for group in groups.values():
                     if len(group) == 1:
-                        group[0][0].handle_safe(*group[0][1])
+                        group[0][0].handle_many(group[0][1])
                     else:
                         self._handle_joint(group)
             now = time.monotonic()
@@ -478,21 +476,21 @@ class Daemon:
                 break
 
     @staticmethod
-    def _handle_joint(group: list[tuple[ArmRuntime, tuple[int, bytes]]]) -> None:
-        """One sample of each of several arms sharing a step-1 model: their recurrences run
-        as one batch (:meth:`ArmPipeline.process_joint`), the weights read once."""
+    def _handle_joint(group: list[tuple[ArmRuntime, list[tuple[int, bytes]]]]) -> None:
+        """Queued samples of several arms sharing a step-1 model: their recurrences run as
+        one batch (:meth:`ArmPipeline.process_many_joint`), the weights read once a step."""
         try:
-            decoded = [(arm, arrived_ns, payload, arm._decode(payload))
-                       for arm, (arrived_ns, payload) in group]
-            decoded = [d for d in decoded if d[3] is not None]
-            results = ArmPipeline.process_joint([d[0].pipeline for d in decoded],
-                                                [d[3] for d in decoded])
-        except Exception as exc:  # noqa: BLE001 - never let one sample kill the arms
+            decoded = [[(arrived_ns, payload, msg) for arrived_ns, payload in chunk
+                        if (msg := arm._decode(payload)) is not None] for arm, chunk in group]
+            results = ArmPipeline.process_many_joint(
+                [arm.pipeline for arm, _ in group], [[d[2] for d in dec] for dec in decoded])
+        except Exception as exc:  # noqa: BLE001 - never let one batch kill the arms
             for arm, _ in group:
                 arm.internal_error(exc)
             return
-        for (arm, arrived_ns, payload, msg), (est, events) in zip(decoded, results):
-            arm.emit_safe(arrived_ns, payload, msg, est, events)
+        for (arm, _), dec, res in zip(group, decoded, results):
+            for (arrived_ns, payload, msg), (est, events) in zip(dec, res):
+                arm.emit_safe(arrived_ns, payload, msg, est, events)
 
     def run(self, duration_s: float | None = None) -> int:
         """Start, serve until SIGINT/SIGTERM or ``duration_s``, stop cleanly. Returns 0."""

@@ -308,41 +308,43 @@ class ArmPipeline:
         return results
 
     @staticmethod
-    def process_joint(pipelines: list[ArmPipeline], msgs: list[JointStateMsg]
-                      ) -> list[tuple[Estimate | None, list[Event]]]:
-        """One joint state for each of several arms whose estimators share their step-1
-        kernel: what ``pipelines[i].process(msgs[i])`` returns for each, the recurrences
-        stepped as one batch (:meth:`TwoStepEstimator.step_joint`, equal to float32
-        rounding)."""
-        results: list[tuple[Estimate | None, list[Event]]] = []
-        admitted = []
-        for p, msg in zip(pipelines, msgs):
-            a = p._admit(msg)
-            if isinstance(a, list):
-                results.append((None, a))
-            else:
-                admitted.append((len(results), p, msg, *a))
-                results.append((None, []))
-        if len(admitted) == 1:                      # nothing to share
-            k, p, msg, t, events, gap_s = admitted[0]
-            results[k] = p._finish_one(msg, t, events, gap_s)
-            return results
-        if not admitted:
-            return results
+    def process_many_joint(pipelines: list[ArmPipeline], msgs: list[list[JointStateMsg]]
+                           ) -> list[list[tuple[Estimate | None, list[Event]]]]:
+        """Queued joint states of several arms whose estimators share their step-1 kernel
+        (arms of one daemon, one model): what each arm's :meth:`process_many` returns, the
+        recurrences of all arms stepped as one batch
+        (:meth:`TwoStepEstimator.step_many_joint`, equal to float32 rounding)."""
+        results: list[list[tuple[Estimate | None, list[Event]]]] = []
+        admitted: list[list[tuple]] = []
+        for p, arm_msgs in zip(pipelines, msgs):
+            res, adm = [], []
+            for msg in arm_msgs:
+                a = p._admit(msg)
+                if isinstance(a, list):
+                    res.append((None, a))
+                else:
+                    adm.append((len(res), msg, *a))
+                    res.append((None, []))
+            results.append(res)
+            admitted.append(adm)
         try:
-            outs = TwoStepEstimator.step_joint(
-                [a[1].estimator for a in admitted], np.array([a[3] for a in admitted]),
-                np.stack([a[2].position for a in admitted]),
-                np.stack([a[2].velocity for a in admitted]),
-                np.stack([a[2].effort for a in admitted]))
+            outs = TwoStepEstimator.step_many_joint(
+                [p.estimator for p in pipelines],
+                [(np.array([a[2] for a in adm]),
+                  np.array([a[1].position for a in adm]).reshape(-1, N_JOINTS),
+                  np.array([a[1].velocity for a in adm]).reshape(-1, N_JOINTS),
+                  np.array([a[1].effort for a in adm]).reshape(-1, N_JOINTS))
+                 for adm in admitted])
         except DataError as exc:                    # cannot happen after validation; be safe
-            for k, p, _, t, events, _ in admitted:
-                results[k] = (None, events + [p._error(t, "invalid", str(exc))])
+            for p, res, adm in zip(pipelines, results, admitted):
+                for k, _, t, events, _ in adm:
+                    res[k] = (None, events + [p._error(t, "invalid", str(exc))])
             return results
-        for (k, p, msg, t, events, gap_s), out in zip(admitted, outs):
-            est, events = p._after(msg, t, out, events, gap_s)
-            events.extend(p._adapt(t))
-            results[k] = (est, events)
+        for p, res, adm, arm_outs in zip(pipelines, results, admitted, outs):
+            for (k, msg, t, events, gap_s), out in zip(adm, arm_outs):
+                res[k] = p._after(msg, t, out, events, gap_s)
+            if adm:
+                res[adm[-1][0]][1].extend(p._adapt(adm[-1][2]))
         return results
 
     def _finish_one(self, msg: JointStateMsg, t: float, events: list[Event],

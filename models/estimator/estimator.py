@@ -75,6 +75,14 @@ class EstimatorBatch:
     restarted: np.ndarray
 
 
+def _segments(restart: np.ndarray) -> list[tuple[int, int]]:
+    """``[start, stop)`` of the runs between restarts (the first run starts at 0)."""
+    starts = np.flatnonzero(restart).tolist()
+    if not starts or starts[0] != 0:
+        starts = [0] + starts
+    return list(zip(starts, starts[1:] + [len(restart)]))
+
+
 class TwoStepEstimator:
     """Step 1 + optional step 2 + wrench map.
 
@@ -199,6 +207,84 @@ class TwoStepEstimator:
         Raises:
             DataError: wrong shapes or non-finite values (nothing is estimated then).
         """
+        t, q, x, tau_measured, restart = self._check_many(t, q, dq, tau_measured)
+        if len(t) == 0:
+            return []
+        step1 = np.empty((len(t), N_JOINTS), dtype=np.float64)
+        for a, b in _segments(restart):
+            if restart[a]:
+                self._state = None
+            if self._state is None:
+                self._state = self._recurrent.initial_state(1)
+            step1[a:b], self._state = self._recurrent.run(x[a:b], self._state)
+        return self._finish_many(t, q, x, tau_measured, restart, step1)
+
+    @staticmethod
+    def step_many_joint(estimators: list[TwoStepEstimator],
+                        batches: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]
+                        ) -> list[list[EstimatorOutput]]:
+        """:meth:`step_many` for several streams whose estimators share one step-1 kernel
+        (:meth:`share_step1`: arms of one daemon), their recurrences stepped together: at
+        each step the streams are one batch, so the ~1 MB of step-1 weights are read once for
+        all of them. Equal to each stream's own :meth:`step_many` up to float32 rounding.
+
+        Args:
+            estimators: B estimators sharing one step-1 kernel, each its own stream.
+            batches: per estimator ``(t, q, dq, tau_measured)`` as in :meth:`step_many`
+                (lengths may differ, zero included).
+        Raises:
+            ConfigError: estimators that do not share their step-1 kernel.
+            DataError: wrong shapes or non-finite values (nothing is estimated then).
+        """
+        kernel = estimators[0]._recurrent
+        if any(e._recurrent is not kernel for e in estimators):
+            raise ConfigError("step_many_joint needs estimators sharing one step-1 kernel")
+        checked = [e._check_many(*b) for e, b in zip(estimators, batches)]
+        if len(kernel.layers) != 1:            # stacked layers (Xfer): one stream at a time
+            return [e.step_many(*b) for e, b in zip(estimators, batches)]
+        layer = kernel.layers[0]
+        lengths = [len(c[0]) for c in checked]
+        steps, width = max(lengths, default=0), len(estimators)
+        g, hid = layer.n_groups, layer.hidden_size
+        proj = np.zeros((steps, width, g, 4 * hid), dtype=kernel.dtype)
+        for i, (c, n) in enumerate(zip(checked, lengths)):
+            if n:
+                xp = c[2].astype(kernel.dtype) @ layer.weight_x
+                xp += layer.bias_flat
+                proj[:n, i] = xp.reshape(n, g, -1)
+        h = np.zeros((g, width, hid), dtype=kernel.dtype)
+        cell = np.zeros_like(h)
+        for i, e in enumerate(estimators):
+            if e._state is not None:
+                h[:, i], cell[:, i] = e._state[0][:, 0], e._state[1][:, 0]
+        restart = np.zeros((steps, width), dtype=bool)
+        active = np.zeros((steps, width), dtype=bool)
+        for i, (c, n) in enumerate(zip(checked, lengths)):
+            restart[:n, i], active[:n, i] = c[4], True
+        out = np.empty((steps, g, width, hid), dtype=kernel.dtype)
+        for k in range(steps):
+            if restart[k].any():
+                h[:, restart[k]] = 0.0
+                cell[:, restart[k]] = 0.0
+            h_new, c_new = layer.step_projected(proj[k].transpose(1, 0, 2), h, cell)
+            if not active[k].all():                  # a stream with fewer samples waits
+                idle = ~active[k]
+                h_new[:, idle], c_new[:, idle] = h[:, idle], cell[:, idle]
+            h, cell = h_new, c_new
+            out[k] = h
+        results = []
+        for i, (e, c, n) in enumerate(zip(estimators, checked, lengths)):
+            if n == 0:
+                results.append([])
+                continue
+            e._state = (np.ascontiguousarray(h[:, i:i + 1]), np.ascontiguousarray(cell[:, i:i + 1]))
+            step1 = kernel.head(out[:n, :, i, :].transpose(1, 0, 2)).astype(np.float64)
+            results.append(e._finish_many(c[0], c[1], c[2], c[3], c[4], step1))
+        return results
+
+    def _check_many(self, t, q, dq, tau_measured):
+        """Validated ``(t, q, x = [q, dq], tau, restart)`` of a run of samples; ``restart``
+        (N,) says where the state restarts (first sample, gaps, time not advancing)."""
         t = np.asarray(t, dtype=np.float64)
         q, dq = np.asarray(q, dtype=np.float64), np.asarray(dq, dtype=np.float64)
         tau_measured = np.asarray(tau_measured, dtype=np.float64)
@@ -210,30 +296,25 @@ class TwoStepEstimator:
         if not (np.isfinite(t).all() and np.isfinite(x).all()
                 and np.isfinite(tau_measured).all()):
             raise DataError("joint state contains NaN or Inf")
-        if n == 0:
-            return []
-        max_gap = self.config.max_gap_s
         restart = np.empty(n, dtype=bool)
-        last = self._t_last
-        restart[0] = last is None or not 0.0 < t[0] - last <= max_gap
-        step = np.diff(t)
-        restart[1:] = ~((step > 0.0) & (step <= max_gap))
-        step1 = np.empty((n, N_JOINTS), dtype=np.float64)
-        windows = [] if self._corr is not None else None
-        starts = np.append(np.flatnonzero(restart), n)
-        if starts[0] != 0:
-            starts = np.r_[0, starts]
-        for a, b in zip(starts[:-1].tolist(), starts[1:].tolist()):
-            if restart[a]:
-                self.reset_state()
-            if self._state is None:
-                self._state = self._recurrent.initial_state(1)
-            y, self._state = self._recurrent.run(x[a:b], self._state)
-            step1[a:b] = y
-            if windows is not None:
-                windows += [self._window.push(row).copy() for row in x[a:b]]
+        if n:
+            max_gap = self.config.max_gap_s
+            last = self._t_last
+            restart[0] = last is None or not 0.0 < t[0] - last <= max_gap
+            step = np.diff(t)
+            restart[1:] = ~((step > 0.0) & (step <= max_gap))
+        return t, q, x, tau_measured, restart
+
+    def _finish_many(self, t, q, x, tau_measured, restart, step1) -> list[EstimatorOutput]:
+        """Corr, external torque and wrench of a run of samples whose step 1 is known."""
+        n = len(t)
         self._t_last = float(t[-1])
         if self._corr is not None:
+            windows = []
+            for a, b in _segments(restart):
+                if restart[a]:
+                    self._window.reset()
+                windows += [self._window.push(row).copy() for row in x[a:b]]
             win = np.stack(windows)
             predicted = self._corr.correct(win, step1.astype(np.float32)).astype(np.float64)
         else:
@@ -246,62 +327,6 @@ class TwoStepEstimator:
         return [EstimatorOutput(float(t[i]), predicted[i], external[i], wrench[i],
                                 bool(restart[i]), step1[i],
                                 None if win is None else win[i]) for i in range(n)]
-
-    @staticmethod
-    def step_joint(estimators: list[TwoStepEstimator], t: np.ndarray, q: np.ndarray,
-                   dq: np.ndarray, tau_measured: np.ndarray) -> list[EstimatorOutput]:
-        """One sample of each of several streams whose estimators share one step-1 kernel
-        (:meth:`share_step1`: arms of one daemon): what :meth:`step_one` on each returns, up
-        to float32 rounding. The recurrence runs once with the streams as its batch, so the
-        step-1 weights are read once for all of them; Corr and wrench stay per stream.
-
-        Args:
-            estimators: B estimators sharing one step-1 kernel, each its own stream.
-            t: (B,) sample times [s]; q, dq, tau_measured: (B, 6), row b for estimator b.
-        Raises:
-            ConfigError: estimators that do not share their step-1 kernel.
-            DataError: wrong shapes or non-finite values (nothing is estimated then).
-        """
-        kernel = estimators[0]._recurrent
-        if any(e._recurrent is not kernel for e in estimators):
-            raise ConfigError("step_joint needs estimators sharing one step-1 kernel")
-        t = np.asarray(t, dtype=np.float64)
-        q, dq = np.asarray(q, dtype=np.float64), np.asarray(dq, dtype=np.float64)
-        tau_measured = np.asarray(tau_measured, dtype=np.float64)
-        b = len(estimators)
-        if t.shape != (b,) or not q.shape == dq.shape == tau_measured.shape == (b, N_JOINTS):
-            raise DataError(f"t must be (B,) and q, dq, tau_measured (B, 6) for B={b}; got "
-                            f"{t.shape}, {q.shape}, {dq.shape}, {tau_measured.shape}")
-        x = np.concatenate([q, dq], axis=1)
-        if not (np.isfinite(t).all() and np.isfinite(x).all()
-                and np.isfinite(tau_measured).all()):
-            raise DataError("joint state contains NaN or Inf")
-        restarted = []
-        for e, ti in zip(estimators, t.tolist()):
-            restart = e._t_last is None or not 0.0 < ti - e._t_last <= e.config.max_gap_s
-            if restart:
-                e.reset_state()
-            e._t_last = ti
-            if e._state is None:
-                e._state = kernel.initial_state(1)
-            restarted.append(restart)
-        state = tuple(np.concatenate([e._state[k] for e in estimators], axis=1)
-                      for k in range(len(estimators[0]._state)))
-        y, new = kernel.step(x, state)                              # (B, 6), batch B
-        out = []
-        for i, e in enumerate(estimators):
-            e._state = tuple(np.ascontiguousarray(s[:, i:i + 1]) for s in new)
-            yi, window = y[i:i + 1], None
-            if e._corr is not None:
-                window = e._window.push(x[i])
-                yi = e._corr.correct(window[None], yi)
-            predicted = yi[0].astype(np.float64)
-            external = tau_measured[i] - predicted
-            out.append(EstimatorOutput(float(t[i]), predicted, external,
-                                       e.wrench_map.wrench(q[i], external), restarted[i],
-                                       y[i].astype(np.float64),
-                                       None if window is None else window.copy()))
-        return out
 
     def predict_torque(self, features: np.ndarray) -> np.ndarray:
         """Predicted torques of one gap-free segment: (T, 12) -> (T, 6), from a fresh state."""

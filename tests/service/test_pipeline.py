@@ -131,31 +131,42 @@ def test_a_backlog_processed_at_once_gives_what_one_by_one_gives(seal, trocar):
 
 
 def test_arms_stepped_together_give_what_each_alone_gives(seal):
-    """process_joint (three arms of one daemon sharing the step-1 kernel, recurrences as one
-    batch) against each arm's own process: equal to float32 rounding, restarts, gate verdicts
-    and refusals per arm (arm 2 gets a NaN and a gap, arm 3 starts late)."""
+    """process_many_joint (three arms of one daemon sharing the step-1 kernel, their
+    recurrences as one batch, each arm with its own number of queued samples, none
+    included) against each arm's own process, sample by sample: equal to float32 rounding,
+    same refusals, events, restarts and gate verdicts (arm 2 gets a NaN and a gap, arm 3
+    starts late)."""
     sessions = [run_scenario("trocar", 3.0, s).joint_states for s in (4, 5, 6)]
+    streams = [[msg(js, i) for i in range(len(js))] for js in sessions]
+    streams[1][40] = msg(sessions[1], 40, velocity=np.full(6, np.nan))
+    streams[1][300:] = [msg(sessions[1], i, t=sessions[1].t[i] + 0.2)
+                        for i in range(300, len(sessions[1]))]
+    streams[2] = streams[2][100:]
     config = PipelineConfig(policy=PolicyConfig(name="frozen"), calibration_s=0.5)
     alone = [ArmPipeline(f"PSM{k}", seal, config) for k in (1, 2, 3)]
     joint = [ArmPipeline(f"PSM{k}", seal, config) for k in (1, 2, 3)]
     for p in joint[1:]:
         p.estimator.share_step1(joint[0].estimator)
+    ref = [[p.process(m) for m in stream] for p, stream in zip(alone, streams)]
+    got: list[list] = [[], [], []]
+    pos, rng = [0, 0, 0], np.random.default_rng(2)
+    while any(pos[a] < len(streams[a]) for a in range(3)):
+        chunks = []
+        for a in range(3):
+            k = int(rng.integers(0, 9))
+            chunks.append(streams[a][pos[a]:pos[a] + k])
+            pos[a] += len(chunks[-1])
+        for a, res in enumerate(ArmPipeline.process_many_joint(joint, chunks)):
+            got[a] += res
     compared = 0
-    for i in range(len(sessions[0])):
-        msgs = [msg(js, i) for js in sessions]
-        if i == 40:
-            msgs[1] = msg(sessions[1], i, velocity=np.full(6, np.nan))
-        if i >= 300:                                         # arm 2: a gap of 0.2 s
-            msgs[1] = msg(sessions[1], i, t=sessions[1].t[i] + 0.2)
-        arms = [0, 1] + ([2] if i >= 100 else [])
-        ref = [alone[a].process(msgs[a]) for a in arms]
-        got = ArmPipeline.process_joint([joint[a] for a in arms], [msgs[a] for a in arms])
-        for (a, ev_a), (b, ev_b) in zip(ref, got):
+    for r_arm, g_arm in zip(ref, got):
+        assert len(r_arm) == len(g_arm)
+        for (a, ev_a), (b, ev_b) in zip(r_arm, g_arm):
             assert [e.kind for e in ev_a] == [e.kind for e in ev_b]
             assert (a is None) == (b is None)
             if a is not None:
                 np.testing.assert_allclose(b.wrench, a.wrench, rtol=1e-4, atol=1e-5)
-                assert (a.free, a.restarted) == (b.free, b.restarted)
+                assert (a.free, a.restarted, a.index) == (b.free, b.restarted, b.index)
                 compared += 1
-    assert compared == 3 * len(sessions[0]) - 100 - 1
+    assert compared == sum(len(s) for s in streams) - 1
     assert [p.counters for p in alone] == [p.counters for p in joint]
