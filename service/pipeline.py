@@ -274,38 +274,14 @@ class ArmPipeline:
     def process_many(self, msgs: list[JointStateMsg]
                      ) -> list[tuple[Estimate | None, list[Event]]]:
         """Consecutive joint states of this arm, as :meth:`process` would handle them one by
-        one, with two differences: the estimator works a backlog off in one pass
-        (:meth:`TwoStepEstimator.step_many`: equal up to float32 rounding), and the
+        one, with two differences: the estimator works a backlog off in one pass (the
+        one-arm case of :meth:`process_many_joint`: equal up to float32 rounding), and the
         adaptation is looked at once, after the last sample (a model that became ready
         meanwhile serves from the next call on, as if it had come a few samples later).
         """
         if len(msgs) < self.BATCH_MIN:
             return [self.process(m) for m in msgs]
-        results: list[tuple[Estimate | None, list[Event]]] = []
-        admitted: list[tuple[int, JointStateMsg, float, list[Event], float | None]] = []
-        for msg in msgs:
-            a = self._admit(msg)
-            if isinstance(a, list):
-                results.append((None, a))
-            else:
-                admitted.append((len(results), msg, *a))
-                results.append((None, []))
-        if not admitted:
-            return results
-        try:
-            outs = self.estimator.step_many(
-                np.array([a[2] for a in admitted]), np.stack([a[1].position for a in admitted]),
-                np.stack([a[1].velocity for a in admitted]),
-                np.stack([a[1].effort for a in admitted]))
-        except DataError as exc:                    # cannot happen after validation; be safe
-            for k, _, t, events, _ in admitted:
-                results[k] = (None, events + [self._error(t, "invalid", str(exc))])
-            return results
-        for (k, msg, t, events, gap_s), out in zip(admitted, outs):
-            results[k] = self._after(msg, t, out, events, gap_s)
-        k, t = admitted[-1][0], admitted[-1][2]
-        results[k][1].extend(self._adapt(t))
-        return results
+        return ArmPipeline.process_many_joint([self], [msgs])[0]
 
     @staticmethod
     def process_many_joint(pipelines: list[ArmPipeline], msgs: list[list[JointStateMsg]]
@@ -314,19 +290,7 @@ class ArmPipeline:
         (arms of one daemon, one model): what each arm's :meth:`process_many` returns, the
         recurrences of all arms stepped as one batch
         (:meth:`TwoStepEstimator.step_many_joint`, equal to float32 rounding)."""
-        results: list[list[tuple[Estimate | None, list[Event]]]] = []
-        admitted: list[list[tuple]] = []
-        for p, arm_msgs in zip(pipelines, msgs):
-            res, adm = [], []
-            for msg in arm_msgs:
-                a = p._admit(msg)
-                if isinstance(a, list):
-                    res.append((None, a))
-                else:
-                    adm.append((len(res), msg, *a))
-                    res.append((None, []))
-            results.append(res)
-            admitted.append(adm)
+        admitted = [p._admit_all(arm_msgs) for p, arm_msgs in zip(pipelines, msgs)]
         try:
             outs = TwoStepEstimator.step_many_joint(
                 [p.estimator for p in pipelines],
@@ -334,18 +298,33 @@ class ArmPipeline:
                   np.array([a[1].position for a in adm]).reshape(-1, N_JOINTS),
                   np.array([a[1].velocity for a in adm]).reshape(-1, N_JOINTS),
                   np.array([a[1].effort for a in adm]).reshape(-1, N_JOINTS))
-                 for adm in admitted])
+                 for _, adm in admitted])
         except DataError as exc:                    # cannot happen after validation; be safe
-            for p, res, adm in zip(pipelines, results, admitted):
+            for p, (res, adm) in zip(pipelines, admitted):
                 for k, _, t, events, _ in adm:
                     res[k] = (None, events + [p._error(t, "invalid", str(exc))])
-            return results
-        for p, res, adm, arm_outs in zip(pipelines, results, admitted, outs):
+            return [res for res, _ in admitted]
+        for p, (res, adm), arm_outs in zip(pipelines, admitted, outs):
             for (k, msg, t, events, gap_s), out in zip(adm, arm_outs):
                 res[k] = p._after(msg, t, out, events, gap_s)
             if adm:
                 res[adm[-1][0]][1].extend(p._adapt(adm[-1][2]))
-        return results
+        return [res for res, _ in admitted]
+
+    def _admit_all(self, msgs: list[JointStateMsg]) -> tuple[list, list]:
+        """:meth:`_admit` in order: the results so far (refusals filled in, a placeholder for
+        each admitted sample) and ``(position in results, msg, t, events, gap_s)`` of those
+        to estimate."""
+        results: list[tuple[Estimate | None, list[Event]]] = []
+        admitted: list[tuple] = []
+        for msg in msgs:
+            a = self._admit(msg)
+            if isinstance(a, list):
+                results.append((None, a))
+            else:
+                admitted.append((len(results), msg, *a))
+                results.append((None, []))
+        return results, admitted
 
     def _finish_one(self, msg: JointStateMsg, t: float, events: list[Event],
                     gap_s: float | None) -> tuple[Estimate | None, list[Event]]:

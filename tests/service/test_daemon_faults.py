@@ -1,4 +1,5 @@
-"""Faults with real processes: the daemon killed with SIGKILL leaves a readable log."""
+"""Faults and load with real processes: a daemon killed with SIGKILL leaves a readable log; a
+burst and two arms at once get every wrench, with one-by-one numbers."""
 
 from __future__ import annotations
 
@@ -6,6 +7,7 @@ import signal
 import subprocess
 import sys
 import time
+from contextlib import contextmanager
 
 import numpy as np
 import zenoh
@@ -15,6 +17,28 @@ from adapters.messages import encode_joint_state
 from adapters.sim.scenarios import run_scenario
 from adapters.zenoh_io import ZenohConfig, open_session
 from tests.service.test_daemon import free_port, wait_for, write_config
+
+
+@contextmanager
+def serving(config, endpoint: str, arms: int):
+    """``wrenchd serve --config config`` as a subprocess and a zenoh session connected to
+    it; on exit the session is closed and the daemon stopped with SIGINT, which it must
+    survive cleanly."""
+    daemon = subprocess.Popen([sys.executable, "-m", "service.cli", "serve", "--config",
+                               str(config)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                              text=True)
+    session = None
+    try:
+        for _ in range(arms):
+            assert "listening" in daemon.stdout.readline()
+        session = open_session(ZenohConfig(connect=[endpoint]))
+        yield session
+    finally:
+        if session is not None:
+            session.close()
+        daemon.send_signal(signal.SIGINT)
+        _, err = daemon.communicate(timeout=60)
+    assert daemon.returncode == 0, err
 
 
 def test_kill_9_loses_at_most_about_a_second_of_log(tmp_path):
@@ -64,25 +88,20 @@ def test_kill_9_loses_at_most_about_a_second_of_log(tmp_path):
 
 def test_a_burst_is_worked_off_in_batches_without_loss(tmp_path):
     """1 400 joint states published as fast as this process can (a backlog far beyond one
-    sample per wake-up, within the ring's 2 000): every one gets its wrench, in stamp order, with the estimates of a
-    sample-by-sample pipeline (the daemon works a backlog off with process_many)."""
-    from service.pipeline import ArmPipeline, PipelineConfig
+    sample per wake-up, within the ring's 2 000): every one gets its wrench, in stamp order,
+    with the estimates of a sample-by-sample pipeline (the daemon works a backlog off with
+    process_many)."""
     from models.estimator.pretrained import load_pretrained
+    from service.pipeline import ArmPipeline, PipelineConfig
 
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     config = write_config(tmp_path / "wrenchd.toml", endpoint, "json", tmp_path / "logs")
-    daemon = subprocess.Popen([sys.executable, "-m", "service.cli", "serve", "--config",
-                               str(config)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                              text=True)
     js = run_scenario("trocar", 7.0, 6).joint_states
     payloads = [encode_joint_state("json", int(round(js.t[i] * 1e9)), js.names,
                                    js.position[i], js.velocity[i], js.effort[i])
                 for i in range(len(js))]
     received: list[bytes] = []
-    session = None
-    try:
-        assert "measured_js" in daemon.stdout.readline()
-        session = open_session(ZenohConfig(connect=[endpoint]))
+    with serving(config, endpoint, arms=1) as session:
         sub = session.declare_subscriber("dvrk/PSM2/wrenchd/measured_cf",
                                          lambda s: received.append(s.payload.to_bytes()))
         # blocking congestion control: the burst must reach the daemon (a dropping
@@ -95,16 +114,10 @@ def test_a_burst_is_worked_off_in_batches_without_loss(tmp_path):
         try:
             wait_for(lambda: len(received) >= len(js), 60.0, "every wrench")
         except AssertionError:
-            raise AssertionError(f"{len(received)} wrenches for {len(js)} joint states; "
-                                 f"daemon: {daemon.stderr}") from None
+            raise AssertionError(f"{len(received)} wrenches for {len(js)} joint states") \
+                from None
         pub.undeclare()
         sub.undeclare()
-    finally:
-        if session is not None:
-            session.close()
-        daemon.send_signal(signal.SIGINT)
-        out, err = daemon.communicate(timeout=60)
-    assert daemon.returncode == 0, err
     from adapters.messages import decode_joint_state, decode_wrench
 
     got = [decode_wrench("json", p) for p in received]
@@ -145,20 +158,13 @@ name = "PSM3"
 [arms.pipeline]
 calibration_s = 2.0
 """)
-    daemon = subprocess.Popen([sys.executable, "-m", "service.cli", "serve", "--config",
-                               str(config)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                              text=True)
     sessions = {"PSM1": run_scenario("trocar", 2.0, 7).joint_states,
                 "PSM3": run_scenario("trocar", 2.0, 8).joint_states}
     payloads = {arm: [encode_joint_state("json", int(round(js.t[i] * 1e9)), js.names,
                                          js.position[i], js.velocity[i], js.effort[i])
                       for i in range(len(js))] for arm, js in sessions.items()}
     received: dict[str, list[bytes]] = {arm: [] for arm in sessions}
-    session = None
-    try:
-        for _ in sessions:
-            assert "listening" in daemon.stdout.readline()
-        session = open_session(ZenohConfig(connect=[endpoint]))
+    with serving(config, endpoint, arms=2) as session:
         subs = [session.declare_subscriber(f"dvrk/{arm}/wrenchd/measured_cf",
                                            lambda s, arm=arm: received[arm].append(
                                                s.payload.to_bytes())) for arm in sessions]
@@ -177,12 +183,6 @@ calibration_s = 2.0
             s.undeclare()
         for p in pubs.values():
             p.undeclare()
-    finally:
-        if session is not None:
-            session.close()
-        daemon.send_signal(signal.SIGINT)
-        out, err = daemon.communicate(timeout=60)
-    assert daemon.returncode == 0, err
     seal = load_pretrained("seal")
     for arm, js in sessions.items():
         ref = ArmPipeline(arm, seal, PipelineConfig(calibration_s=2.0))
