@@ -239,9 +239,9 @@ class TwoStepEstimator:
         kernel = estimators[0]._recurrent
         if any(e._recurrent is not kernel for e in estimators):
             raise ConfigError("step_many_joint needs estimators sharing one step-1 kernel")
-        checked = [e._check_many(*b) for e, b in zip(estimators, batches)]
         if len(kernel.layers) != 1:            # stacked layers (Xfer): one stream at a time
             return [e.step_many(*b) for e, b in zip(estimators, batches)]
+        checked = [e._check_many(*b) for e, b in zip(estimators, batches)]
         layer = kernel.layers[0]
         lengths = [len(c[0]) for c in checked]
         steps, width = max(lengths, default=0), len(estimators)

@@ -30,19 +30,24 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def write_config(path: Path, endpoint: str, encoding: str, log_dir: Path) -> Path:
-    path.write_text(f"""
+def write_config(path: Path, endpoint: str, encoding: str, log_dir: Path,
+                 arms: tuple[str, ...] = ("PSM2",)) -> Path:
+    """An external-robot daemon config listening on ``endpoint``; each arm calibrates 2 s."""
+    text = f"""
 robot = "external"
 [zenoh]
 listen = ["{endpoint}"]
 [log]
 directory = "{log_dir}"
-[[arms]]
-name = "PSM2"
+"""
+    for arm in arms:
+        text += f"""[[arms]]
+name = "{arm}"
 encoding = "{encoding}"
 [arms.pipeline]
 calibration_s = 2.0
-""")
+"""
+    path.write_text(text)
     return path
 
 

@@ -142,22 +142,8 @@ def test_two_arms_of_one_model_get_the_numbers_each_would_get_alone(tmp_path):
     from service.pipeline import ArmPipeline, PipelineConfig
 
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    config = tmp_path / "wrenchd.toml"
-    config.write_text(f"""
-robot = "external"
-[zenoh]
-listen = ["{endpoint}"]
-[log]
-directory = "{tmp_path / 'logs'}"
-[[arms]]
-name = "PSM1"
-[arms.pipeline]
-calibration_s = 2.0
-[[arms]]
-name = "PSM3"
-[arms.pipeline]
-calibration_s = 2.0
-""")
+    config = write_config(tmp_path / "wrenchd.toml", endpoint, "json", tmp_path / "logs",
+                          arms=("PSM1", "PSM3"))
     sessions = {"PSM1": run_scenario("trocar", 2.0, 7).joint_states,
                 "PSM3": run_scenario("trocar", 2.0, 8).joint_states}
     payloads = {arm: [encode_joint_state("json", int(round(js.t[i] * 1e9)), js.names,
