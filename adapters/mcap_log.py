@@ -277,8 +277,8 @@ class LogWriterThread:
         self._queue: deque[tuple[McapLog, str, int, Payload]] = deque()
         self._stop = threading.Event()
         self.errors = 0                                      # payload functions that raised
-        self._thread = threading.Thread(target=self._run, name="wrenchd-log", daemon=True)
-        self._thread.start()
+        self.thread = threading.Thread(target=self._run, name="wrenchd-log", daemon=True)
+        self.thread.start()
 
     def put(self, log: McapLog, topic: str, stamp_ns: int, payload: Payload) -> None:
         """Queue one record (cheap: an append)."""
@@ -310,6 +310,6 @@ class LogWriterThread:
     def close(self) -> None:
         """Write what is queued, stop the thread, finish every log."""
         self._stop.set()
-        self._thread.join(timeout=30.0)
+        self.thread.join(timeout=30.0)
         for log in self.logs:
             log.close()

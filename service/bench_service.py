@@ -46,10 +46,15 @@ def _free_port() -> int:
 
 def _config(path: Path, endpoint: str, arms: list[str], log_dir: Path,
             adaptation: bool = True, log: bool = True,
-            pin: tuple[list[int], list[int]] | None = None) -> None:
+            pin: tuple[list[int], list[int]] | None = None,
+            realtime: int | None = None) -> None:
     lines = ['robot = "external"']
+    if pin is not None or realtime is not None:
+        lines += ["[cpus]"]
     if pin is not None:
-        lines += ["[cpus]", f"daemon = {pin[0]}", f"worker = {pin[1]}"]
+        lines += [f"daemon = {pin[0]}", f"worker = {pin[1]}"]
+    if realtime is not None:
+        lines += [f"realtime_priority = {realtime}"]
     lines += ["[zenoh]", f'listen = ["{endpoint}"]', "[log]",
              f'directory = "{log_dir}"', f"enabled = {str(log).lower()}", "[ring]",
              "capacity = 4000"]
@@ -132,14 +137,20 @@ def _drain(stream, path: Path) -> threading.Thread:
 
 def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 20.0,
                   warmup_s: float = 3.0, adaptation: bool = True,
-                  log: bool = True, floor: bool = False, pin: bool = False) -> dict[str, Any]:
+                  log: bool = True, floor: bool = False, pin: bool = False,
+                  realtime: int | None = None) -> dict[str, Any]:
     """Run the benchmark; returns the result dictionary.
 
     Also samples the daemon's resident memory (with its worker) once a second: the soak run
     is this benchmark with a long ``duration_s`` (``wrenchd bench soak``). With ``floor``
     the daemon is replaced by :mod:`service.bench_floor` (its plumbing without estimation:
     ``wrenchd bench floor``). With ``pin`` the daemon gets the last CPU to itself and its
-    worker and this process share the others (the daemon's ``cpus`` settings)."""
+    worker and this process share the others (the daemon's ``cpus`` settings). With
+    ``realtime`` (a SCHED_FIFO priority) the daemon's sample path runs in the real-time class
+    (``[cpus] realtime_priority``), and so do this process's publisher and subscriber: a bench
+    left in the normal class would be measured waiting behind the machine's other work."""
+    if realtime is not None and floor:
+        raise ValueError("the floor bench has no real-time setting")
     from adapters.sim.scenarios import run_scenario
     from adapters.sim.simulator import SimulatorConfig
 
@@ -165,7 +176,8 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
             raise RuntimeError("--pin needs at least two CPUs")
         placement = ([cpus[-1]], cpus[:-1])
         os.sched_setaffinity(0, placement[1])
-    _config(workdir / "bench.toml", endpoint, arms, workdir / "logs", adaptation, log, placement)
+    _config(workdir / "bench.toml", endpoint, arms, workdir / "logs", adaptation, log, placement,
+            realtime)
     command = ([sys.executable, "-m", "service.bench_floor", "--listen", endpoint, "--arms",
                 *arms] if floor else
                [sys.executable, "-m", "service.cli", "serve", "--config",
@@ -185,6 +197,10 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
                 raise RuntimeError(f"daemon did not start: {line}{daemon.stderr.read()}")
         drains = [_drain(daemon.stdout, workdir / "daemon.out"),
                   _drain(daemon.stderr, workdir / "daemon.err")]
+        if realtime is not None:            # zenoh's threads and the callbacks' inherit it
+            from service.threads import realtime as enter_realtime
+
+            enter_realtime(realtime)
         session = open_session(ZenohConfig(connect=[endpoint]))
         subs = [session.declare_subscriber(
             f"dvrk/{arm}/wrenchd/measured_cf",
@@ -243,6 +259,10 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
     finally:
         if session is not None:
             session.close()
+        if realtime is not None:
+            from service.threads import normal_scheduling
+
+            normal_scheduling()
         daemon.send_signal(signal.SIGINT)
         try:
             if drains:                           # the drain threads own its output now
@@ -327,4 +347,5 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
             "daemon": "bench floor (no estimation)" if floor else "wrenchd serve",
             "cpus": ({"daemon": placement[0], "worker_and_bench": placement[1]}
                      if placement else None),
+            "realtime_priority": realtime,
             "per_arm": per_arm}

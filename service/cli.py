@@ -133,7 +133,8 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     if args.duration is None:
         args.duration = {"service": 20.0, "floor": 20.0, "arm": 20.0,
                          "soak": 1800.0}.get(args.kind, 60.0)
-    return run(args.kind, args.json, args.duration, args.arms, args.rate, args.pin)
+    return run(args.kind, args.json, args.duration, args.arms, args.rate, args.pin,
+               args.realtime)
 
 
 #: Modules that add their own sub-commands: each has ``register(subparsers)``, which adds a
@@ -231,6 +232,10 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--pin", action="store_true",
                        help="service/soak/floor: the daemon on the last CPU alone, its worker "
                             "and the bench on the others (the daemon's [cpus] settings)")
+    bench.add_argument("--realtime", type=int, default=None, metavar="PRIORITY",
+                       help="service/soak: the daemon's sample path and this bench's publisher "
+                            "and subscriber under SCHED_FIFO at PRIORITY (the daemon's [cpus] "
+                            "realtime_priority; needs CAP_SYS_NICE)")
     bench.set_defaults(func=_cmd_bench)
     for module in COMMAND_MODULES:
         importlib.import_module(module).register(sub)

@@ -95,13 +95,21 @@ class CpuPlacement(BaseModel):
 
     A bedside machine gives the estimator a core of its own: ``daemon = [1]``,
     ``worker = [0]`` keeps training, the robot's other software and the cache traffic they
-    bring off the core that estimates. Unset: the scheduler decides.
+    bring off the core that estimates. Unset: the scheduler decides. ``realtime_priority``
+    lets a sample's threads preempt everything else the machine runs (as the dVRK's own
+    controller runs).
     """
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     daemon: list[int] | None = Field(default=None, description="CPUs of the daemon's threads")
     worker: list[int] | None = Field(default=None, description="CPUs of the adaptation worker")
+    realtime_priority: int | None = Field(
+        default=None, ge=1, le=99,
+        description="SCHED_FIFO priority (1-99) of the threads a sample passes through "
+                    "(zenoh's, the callbacks', estimation); the log writer, the console and "
+                    "the adaptation worker stay in the normal class. Needs CAP_SYS_NICE or an "
+                    "rtprio limit. Unset: normal scheduling")
 
     @field_validator("daemon", "worker")
     @classmethod

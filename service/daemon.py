@@ -53,6 +53,7 @@ from models.series import JOINT_NAMES
 from service.config import ArmConfig, ServiceSettings
 from service.adaptation import normalisation_of
 from service.pipeline import ArmPipeline, Estimate, Event
+from service.threads import normal_scheduling, realtime
 from service.worker import ProcessAdaptation, WorkerProcess
 
 SWITCH_INTERVAL_S = 2e-4
@@ -130,8 +131,8 @@ class Console:
     def __init__(self, capacity: int = 200) -> None:
         self._queue: queue.Queue[str | None] = queue.Queue(maxsize=capacity)
         self.dropped = 0
-        self._thread = threading.Thread(target=self._run, name="wrenchd-console", daemon=True)
-        self._thread.start()
+        self.thread = threading.Thread(target=self._run, name="wrenchd-console", daemon=True)
+        self.thread.start()
 
     def say(self, line: str) -> None:
         try:
@@ -151,7 +152,7 @@ class Console:
             self._queue.put(None, timeout=timeout_s)
         except queue.Full:
             pass
-        self._thread.join(timeout=timeout_s)
+        self.thread.join(timeout=timeout_s)
 
 
 class ArmRuntime:
@@ -387,6 +388,9 @@ class Daemon:
         # The zenoh callback threads and the estimation threads share the GIL; at the default
         # 5 ms switch interval a sample could wait that long for its thread to run.
         sys.setswitchinterval(SWITCH_INTERVAL_S)
+        if s.cpus.realtime_priority is not None:      # refused at once, not after loading
+            realtime(s.cpus.realtime_priority)
+            normal_scheduling()
         if s.cpus.daemon is not None:
             # before any thread or process is made: they all inherit it (the worker resets
             # its own when cpus.worker is set)
@@ -402,13 +406,23 @@ class Daemon:
             norms = {name: normalisation_of(self.models[name]) for name in adapt}
             self.worker = WorkerProcess(adapt, s.effective_models_dir(), frac, norms,
                                         cpus=s.cpus.worker)
-        self.session = open_session(s.zenoh)
+        if s.cpus.realtime_priority is not None:
+            # from here until the estimation thread is started, every thread made (zenoh's
+            # runtime and callback threads, estimation) inherits the real-time class; the worker
+            # was spawned before, and the log writer, console and robots are put back after
+            realtime(s.cpus.realtime_priority)
+        try:
+            self.session = open_session(s.zenoh)
+        except BaseException:
+            normal_scheduling()
+            raise
         try:
             for cfg in s.arms:
                 worker = self.worker if cfg.name in adapt else None
                 self.arms.append(ArmRuntime(cfg, s, self.session, worker, self.wake,
                                             self.models[cfg.name]))
         except Exception:
+            normal_scheduling()
             self.close()
             raise
         first: dict[int, ArmRuntime] = {}
@@ -431,6 +445,10 @@ class Daemon:
         self.thread = threading.Thread(target=self._estimate, name="wrenchd-estimate",
                                        daemon=True)
         self.thread.start()
+        if s.cpus.realtime_priority is not None:
+            for thread in (self.log_writer.thread, self.console.thread):
+                normal_scheduling(thread.native_id)
+            normal_scheduling()
         if s.robot == "simulated":
             for arm in self.arms:
                 self.robots.append(subprocess.Popen(_robot_command(s, arm.name)))

@@ -7,9 +7,17 @@ cores they share with each other: BLAS threads of their own busy-wait against th
 default replay ran 3x slower: 2 743 vs 8 273 samples/s, ``wrenchd bench replay --duration
 120`` without and with ``OMP_NUM_THREADS=1``). :func:`one_compute_thread` limits BLAS through
 threadpoolctl, whatever was imported first, and torch to one intra-op thread.
+
+:func:`realtime` and :func:`normal_scheduling` move threads in and out of the kernel's
+real-time class (``SCHED_FIFO``): the daemon's ``[cpus] realtime_priority`` setting puts the
+threads a sample passes through ahead of everything else that runs on the machine.
 """
 
 from __future__ import annotations
+
+import os
+
+from models.errors import ConfigError
 
 
 def one_compute_thread() -> None:
@@ -19,3 +27,23 @@ def one_compute_thread() -> None:
 
     torch.set_num_threads(1)
     threadpool_limits(1)
+
+
+def realtime(priority: int) -> None:
+    """Run the calling thread, and the threads and processes it starts from now on, under
+    ``SCHED_FIFO`` at ``priority`` (1-99). Raises :class:`ConfigError` saying what to do where
+    this process may not (it needs ``CAP_SYS_NICE`` or an ``rtprio`` limit)."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    except PermissionError as exc:
+        raise ConfigError(
+            f"cpus.realtime_priority = {priority}: this process may not use real-time "
+            f"scheduling ({exc.strerror}); give it CAP_SYS_NICE or an rtprio limit of at "
+            f"least {priority} (ulimit -r, /etc/security/limits.conf), or leave the setting "
+            f"unset") from None
+
+
+def normal_scheduling(tid: int = 0) -> None:
+    """Put thread ``tid`` (0: the calling thread) back in the normal class (always allowed)."""
+    if os.sched_getscheduler(tid) != os.SCHED_OTHER:
+        os.sched_setscheduler(tid, os.SCHED_OTHER, os.sched_param(0))

@@ -42,7 +42,7 @@ def _run(inbox: mp.Queue, outbox: mp.Queue, configs: dict[str, dict[str, Any]],
         os.sched_setaffinity(0, cpus)
     from models.estimator.checkpoint import save_checkpoint
     from service.adaptation import Adapter
-    from service.threads import one_compute_thread
+    from service.threads import normal_scheduling, one_compute_thread
 
     one_compute_thread()          # a spawned process: NumPy's BLAS would start one per core
     # Ctrl-C in a terminal reaches the whole process group: the daemon stops this worker with
@@ -50,6 +50,7 @@ def _run(inbox: mp.Queue, outbox: mp.Queue, configs: dict[str, dict[str, Any]],
     # instead of dying mid-round with a traceback.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    normal_scheduling()           # never in the daemon's real-time class, whatever it inherited
     try:
         os.nice(10)
     except OSError:

@@ -1,0 +1,109 @@
+"""Real-time scheduling (``[cpus] realtime_priority``): the threads a sample passes through run
+under SCHED_FIFO, the log writer, the console and the adaptation worker do not; a process
+that may not use it is told so by name before anything starts."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import pytest
+
+from models.errors import ConfigError
+from service.config import load_settings
+from tests.service.test_daemon import free_port, wait_for
+
+ROOT = Path(__file__).resolve().parents[2]
+PRIORITY = 7
+
+
+def _policy(pid: int, tid: int) -> tuple[str, int, int]:
+    """(thread name, scheduling policy, real-time priority) from /proc."""
+    stat = Path(f"/proc/{pid}/task/{tid}/stat").read_text()
+    name = stat[stat.index("(") + 1:stat.rindex(")")]
+    fields = stat[stat.rindex(")") + 2:].split()
+    return name, int(fields[38]), int(fields[37])       # policy (41st), rt_priority (40th)
+
+
+def _config(tmp_path: Path) -> Path:
+    config = tmp_path / "wrenchd.toml"
+    config.write_text(f"""
+robot = "external"
+[cpus]
+realtime_priority = {PRIORITY}
+[zenoh]
+listen = ["tcp/127.0.0.1:{free_port()}"]
+[log]
+directory = "{tmp_path / 'logs'}"
+""")
+    return config
+
+
+def _may_use_realtime() -> bool:
+    probe = subprocess.run([sys.executable, "-c", "import os; os.sched_setscheduler("
+                            "0, os.SCHED_FIFO, os.sched_param(1))"], capture_output=True)
+    return probe.returncode == 0
+
+
+def test_the_priority_is_checked():
+    with pytest.raises(ConfigError, match="realtime_priority"):
+        load_settings(cpus={"realtime_priority": 100})
+
+
+@pytest.mark.skipif(not _may_use_realtime(), reason="this machine gives no real-time class")
+def test_a_samples_threads_are_real_time_and_the_rest_is_not(tmp_path):
+    daemon = subprocess.Popen([sys.executable, "-m", "service.cli", "serve", "--config",
+                               str(_config(tmp_path))], stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE, text=True, cwd=ROOT)
+    try:
+        assert "listening" in daemon.stdout.readline()
+        children: list[int] = []
+
+        def worker_started() -> bool:
+            children[:] = [int(c) for c in Path(f"/proc/{daemon.pid}/task/{daemon.pid}/children")
+                           .read_text().split()]
+            return bool(children)
+
+        wait_for(worker_started, 20.0, "the adaptation worker")
+        threads = {tid: _policy(daemon.pid, tid)
+                   for tid in map(int, os.listdir(f"/proc/{daemon.pid}/task"))}
+        fifo = {tid for tid, (_, policy, prio) in threads.items()
+                if policy == os.SCHED_FIFO and prio == PRIORITY}
+        normal = {tid for tid, (_, policy, _) in threads.items() if policy == os.SCHED_OTHER}
+        assert fifo | normal == set(threads), threads
+        # zenoh's runtime threads (its link threads, rx-/tx-, are made by them later)
+        assert any(threads[t][0].startswith(("net-", "acc-", "rx-", "tx-")) for t in fifo), threads
+        python_fifo = [t for t in fifo if threads[t][0].startswith("python")]
+        assert len(python_fifo) >= 2, threads        # estimation, zenoh's callback thread
+        # the main thread, the log writer and the console are normal
+        assert daemon.pid in normal
+        assert len([t for t in normal if threads[t][0].startswith("python")]) >= 3, threads
+        assert not any(threads[t][0].startswith(("net-", "acc-")) for t in normal), threads
+        for child in children:                      # the adaptation worker
+            assert all(_policy(child, int(t))[1] == os.SCHED_OTHER
+                       for t in os.listdir(f"/proc/{child}/task"))
+    finally:
+        daemon.send_signal(signal.SIGINT)
+        out, err = daemon.communicate(timeout=60)
+    assert daemon.returncode == 0, err
+
+
+@pytest.mark.skipif(os.geteuid() != 0 or not Path("/usr/bin/setpriv").exists(),
+                    reason="needs root and setpriv to run the daemon without privileges")
+def test_a_daemon_that_may_not_is_refused_with_what_to_do():
+    # pytest's own temporary directories are root's alone
+    with tempfile.TemporaryDirectory() as tmp:
+        Path(tmp).chmod(0o777)
+        config = _config(Path(tmp))
+        config.chmod(0o644)
+        run = subprocess.run(["setpriv", "--reuid=65534", "--regid=65534", "--clear-groups",
+                              "--inh-caps=-all", sys.executable, "-m", "service.cli", "serve",
+                              "--config", str(config)], capture_output=True, text=True,
+                             cwd=ROOT, env={**os.environ, "HOME": tmp}, timeout=120)
+    assert run.returncode != 0
+    assert "realtime_priority = 7" in run.stderr and "CAP_SYS_NICE" in run.stderr, run.stderr
+    assert "listening" not in run.stdout
