@@ -347,5 +347,8 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
             "daemon": "bench floor (no estimation)" if floor else "wrenchd serve",
             "cpus": ({"daemon": placement[0], "worker_and_bench": placement[1]}
                      if placement else None),
-            "realtime_priority": realtime,
+            # the daemon's sample path (its default takes the real-time class where permitted)
+            "realtime_priority": next((st.get("realtime_priority") for st in status.values()),
+                                      realtime),
+            "bench_realtime_priority": realtime,
             "per_arm": per_arm}

@@ -90,6 +90,10 @@ class RingConfig(BaseModel):
                           description="queued samples; beyond, the oldest is dropped and counted")
 
 
+#: The real-time priority ``auto`` takes: low in the 1-99 range, under a robot controller's own.
+AUTO_REALTIME_PRIORITY = 10
+
+
 class CpuPlacement(BaseModel):
     """Which CPUs the daemon and its adaptation worker may run on (Linux affinity).
 
@@ -97,19 +101,28 @@ class CpuPlacement(BaseModel):
     ``worker = [0]`` keeps training, the robot's other software and the cache traffic they
     bring off the core that estimates. Unset: the scheduler decides. ``realtime_priority``
     lets a sample's threads preempt everything else the machine runs (as the dVRK's own
-    controller runs).
+    controller runs); by default wherever the process is permitted to.
     """
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     daemon: list[int] | None = Field(default=None, description="CPUs of the daemon's threads")
     worker: list[int] | None = Field(default=None, description="CPUs of the adaptation worker")
-    realtime_priority: int | None = Field(
-        default=None, ge=1, le=99,
+    realtime_priority: int | Literal["auto", "off"] = Field(
+        default="auto",
         description="SCHED_FIFO priority (1-99) of the threads a sample passes through "
-                    "(zenoh's, the callbacks', estimation); the log writer, the console and "
-                    "the adaptation worker stay in the normal class. Needs CAP_SYS_NICE or an "
-                    "rtprio limit. Unset: normal scheduling")
+                    "(zenoh's, the callbacks', estimation); the log writer and the console one "
+                    "step below; the adaptation worker stays in the normal class. An explicit "
+                    "priority needs CAP_SYS_NICE or an rtprio limit and is refused without; "
+                    f"auto: {AUTO_REALTIME_PRIORITY} where permitted, else the normal class "
+                    "(said once at start); off: the normal class")
+
+    @field_validator("realtime_priority")
+    @classmethod
+    def _priority(cls, value: int | str) -> int | str:
+        if isinstance(value, int) and not 1 <= value <= 99:
+            raise ValueError(f"{value} is not a SCHED_FIFO priority (1-99), 'auto' or 'off'")
+        return value
 
     @field_validator("daemon", "worker")
     @classmethod

@@ -50,7 +50,7 @@ from adapters.zenoh_io import open_session
 from models.errors import ConfigError, DataError
 from models.estimator.free_space import FreeSpaceModel
 from models.series import JOINT_NAMES
-from service.config import ArmConfig, ServiceSettings
+from service.config import AUTO_REALTIME_PRIORITY, ArmConfig, ServiceSettings
 from service.adaptation import normalisation_of
 from service.pipeline import ArmPipeline, Estimate, Event
 from service.threads import normal_scheduling, realtime
@@ -178,6 +178,7 @@ class ArmRuntime:
             "keys": self.keys})
         self.log_writer: LogWriterThread | None = None     # set by the daemon before start()
         self.console: Console | None = None                 # likewise
+        self.realtime_priority: int | None = None           # likewise: the sample path's
         self._log_problem_reported = False
         self.pub_wrench = session.declare_publisher(self.keys["wrench"])
         self.pub_events = session.declare_publisher(self.keys["events"])
@@ -213,6 +214,7 @@ class ArmRuntime:
         s["rate_hz"] = self.rate_hz
         s["latency_us"] = _percentiles(list(self.latency_us))
         s["encoding"] = self.cfg.encoding
+        s["realtime_priority"] = self.realtime_priority
         s["keys"] = self.keys
         s["log"] = {"path": str(self.log.path) if self.log.path else None,
                     "written": self.log.written, "lost": self.log.lost,
@@ -382,15 +384,14 @@ class Daemon:
         self.robots: list[subprocess.Popen] = []
         self.log_writer: LogWriterThread | None = None
         self.console: Console | None = None
+        self.realtime_priority: int | None = None
 
     def start(self) -> None:
         s = self.settings
         # The zenoh callback threads and the estimation threads share the GIL; at the default
         # 5 ms switch interval a sample could wait that long for its thread to run.
         sys.setswitchinterval(SWITCH_INTERVAL_S)
-        if s.cpus.realtime_priority is not None:      # refused at once, not after loading
-            realtime(s.cpus.realtime_priority)
-            normal_scheduling()
+        self.realtime_priority = self._realtime_priority()   # checked before loading
         if s.cpus.daemon is not None:
             # before any thread or process is made: they all inherit it (the worker resets
             # its own when cpus.worker is set)
@@ -406,11 +407,11 @@ class Daemon:
             norms = {name: normalisation_of(self.models[name]) for name in adapt}
             self.worker = WorkerProcess(adapt, s.effective_models_dir(), frac, norms,
                                         cpus=s.cpus.worker)
-        if s.cpus.realtime_priority is not None:
+        if self.realtime_priority is not None:
             # from here until the estimation thread is started, every thread made (zenoh's
             # runtime and callback threads, estimation) inherits the real-time class; the worker
-            # was spawned before, and the log writer, console and robots are put back after
-            realtime(s.cpus.realtime_priority)
+            # was spawned before, and the robots are started after it is left
+            realtime(self.realtime_priority)
         try:
             self.session = open_session(s.zenoh)
         except BaseException:
@@ -437,6 +438,7 @@ class Daemon:
         for arm in self.arms:
             arm.log_writer = self.log_writer
             arm.console = self.console
+            arm.realtime_priority = self.realtime_priority
         # Everything loaded so far (torch, models: ~260k objects) lives as long as the daemon.
         # Freezing it keeps the cyclic GC from scanning it: a full collection of it takes
         # 100-300 ms on this machine, a stall every estimate would wait through.
@@ -445,9 +447,12 @@ class Daemon:
         self.thread = threading.Thread(target=self._estimate, name="wrenchd-estimate",
                                        daemon=True)
         self.thread.start()
-        if s.cpus.realtime_priority is not None:
+        if self.realtime_priority is not None:
+            # The log writer and the console take the GIL too: left in the normal class, one
+            # preempted by other programs while holding it would hold up estimation with it.
+            # One step below, they never preempt the sample path.
             for thread in (self.log_writer.thread, self.console.thread):
-                normal_scheduling(thread.native_id)
+                realtime(max(1, self.realtime_priority - 1), thread.native_id)
             normal_scheduling()
         if s.robot == "simulated":
             for arm in self.arms:
@@ -456,6 +461,26 @@ class Daemon:
             print(f"wrenchd: {arm.name} ({arm.cfg.encoding}) listening on "
                   f"'{arm.keys['measured_js']}', publishing wrenches on '{arm.keys['wrench']}', "
                   f"logging to {s.log.directory}", flush=True)
+
+    def _realtime_priority(self) -> int | None:
+        """The SCHED_FIFO priority of the sample path, None for the normal class; an explicit
+        priority this process may not take is refused (:class:`ConfigError`), ``auto`` falls
+        back to the normal class and says so."""
+        wanted = self.settings.cpus.realtime_priority
+        if wanted == "off":
+            return None
+        priority = AUTO_REALTIME_PRIORITY if wanted == "auto" else int(wanted)
+        try:
+            realtime(priority)
+        except ConfigError:
+            if wanted != "auto":
+                raise
+            print("wrenchd: real-time scheduling is not permitted here, so the sample path runs "
+                  "in the normal class (latency then depends on what else runs; see [cpus] "
+                  "realtime_priority)", file=sys.stderr, flush=True)
+            return None
+        normal_scheduling()
+        return priority
 
     def _estimate(self) -> None:
         """The estimation thread: every arm's queued samples, in arrival order per arm, arms

@@ -29,12 +29,12 @@ def one_compute_thread() -> None:
     threadpool_limits(1)
 
 
-def realtime(priority: int) -> None:
-    """Run the calling thread, and the threads and processes it starts from now on, under
-    ``SCHED_FIFO`` at ``priority`` (1-99). Raises :class:`ConfigError` saying what to do where
-    this process may not (it needs ``CAP_SYS_NICE`` or an ``rtprio`` limit)."""
+def realtime(priority: int, tid: int = 0) -> None:
+    """Run thread ``tid`` (0: the calling thread, and the threads and processes it starts from
+    now on) under ``SCHED_FIFO`` at ``priority`` (1-99). Raises :class:`ConfigError` saying what
+    to do where this process may not (it needs ``CAP_SYS_NICE`` or an ``rtprio`` limit)."""
     try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+        os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(priority))
     except PermissionError as exc:
         raise ConfigError(
             f"cpus.realtime_priority = {priority}: this process may not use real-time "
