@@ -59,7 +59,7 @@ def bench_inference(duration_s: float = 60.0, seed: int = 3, warmup: int = 500) 
 
 
 def run(kind: str, json_path: str | None, duration_s: float, arms: int = 1,
-        rate_hz: float = 1000.0, pin: bool = False, realtime: int | None = None) -> int:
+        rate_hz: float = 1000.0, pin: bool = False, realtime: int | str = "auto") -> int:
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     if kind == "inference":
         result = bench_inference(duration_s=duration_s)

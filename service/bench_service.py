@@ -47,14 +47,10 @@ def _free_port() -> int:
 def _config(path: Path, endpoint: str, arms: list[str], log_dir: Path,
             adaptation: bool = True, log: bool = True,
             pin: tuple[list[int], list[int]] | None = None,
-            realtime: int | None = None) -> None:
-    lines = ['robot = "external"']
-    if pin is not None or realtime is not None:
-        lines += ["[cpus]"]
+            realtime: int | str = "auto") -> None:
+    lines = ['robot = "external"', "[cpus]", f"realtime_priority = {json.dumps(realtime)}"]
     if pin is not None:
         lines += [f"daemon = {pin[0]}", f"worker = {pin[1]}"]
-    if realtime is not None:
-        lines += [f"realtime_priority = {realtime}"]
     lines += ["[zenoh]", f'listen = ["{endpoint}"]', "[log]",
              f'directory = "{log_dir}"', f"enabled = {str(log).lower()}", "[ring]",
              "capacity = 4000"]
@@ -113,6 +109,26 @@ def _stolen_windows(steal: list[tuple[float, int | None]]) -> list[tuple[float, 
     return out
 
 
+def _enter_realtime(setting: int | str) -> int | None:
+    """Put this process's threads from now on (zenoh's, the subscriber callbacks', the
+    publisher) in the real-time class as the daemon's ``realtime_priority`` ``setting`` would;
+    the priority taken, or None."""
+    from models.errors import ConfigError
+    from service.config import AUTO_REALTIME_PRIORITY
+    from service.threads import realtime
+
+    if setting == "off":
+        return None
+    priority = AUTO_REALTIME_PRIORITY if setting == "auto" else int(setting)
+    try:
+        realtime(priority)
+    except ConfigError:
+        if setting != "auto":
+            raise
+        return None
+    return priority
+
+
 def _children(pid: int) -> list[int]:
     try:
         return [int(c) for c in Path(f"/proc/{pid}/task/{pid}/children").read_text().split()]
@@ -138,19 +154,19 @@ def _drain(stream, path: Path) -> threading.Thread:
 def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 20.0,
                   warmup_s: float = 3.0, adaptation: bool = True,
                   log: bool = True, floor: bool = False, pin: bool = False,
-                  realtime: int | None = None) -> dict[str, Any]:
+                  realtime: int | str = "auto") -> dict[str, Any]:
     """Run the benchmark; returns the result dictionary.
 
     Also samples the daemon's resident memory (with its worker) once a second: the soak run
     is this benchmark with a long ``duration_s`` (``wrenchd bench soak``). With ``floor``
     the daemon is replaced by :mod:`service.bench_floor` (its plumbing without estimation:
     ``wrenchd bench floor``). With ``pin`` the daemon gets the last CPU to itself and its
-    worker and this process share the others (the daemon's ``cpus`` settings). With
-    ``realtime`` (a SCHED_FIFO priority) the daemon's sample path runs in the real-time class
-    (``[cpus] realtime_priority``), and so do this process's publisher and subscriber: a bench
-    left in the normal class would be measured waiting behind the machine's other work."""
-    if realtime is not None and floor:
-        raise ValueError("the floor bench has no real-time setting")
+    worker and this process share the others (the daemon's ``cpus`` settings). ``realtime``
+    is the daemon's ``[cpus] realtime_priority`` (``auto``, ``off`` or a SCHED_FIFO priority),
+    and this process's publisher and subscriber take the same: a robot's publisher runs in the
+    real-time class, and a bench left in the normal class would be measured waiting behind the
+    machine's other work (measured under load ~4: p99 6.3-11.7 ms with only the daemon
+    real-time, 3.2 ms with both). The floor bench runs in the normal class."""
     from adapters.sim.scenarios import run_scenario
     from adapters.sim.simulator import SimulatorConfig
 
@@ -188,6 +204,7 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
     sent_ns = {arm: np.zeros(n, dtype=np.int64) for arm in arms}
     received: dict[str, list[tuple[int, bytes]]] = {arm: [] for arm in arms}
     session = None
+    bench_priority = None
     status: dict[str, Any] = {}
     drains: list[threading.Thread] = []
     try:
@@ -197,10 +214,7 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
                 raise RuntimeError(f"daemon did not start: {line}{daemon.stderr.read()}")
         drains = [_drain(daemon.stdout, workdir / "daemon.out"),
                   _drain(daemon.stderr, workdir / "daemon.err")]
-        if realtime is not None:            # zenoh's threads and the callbacks' inherit it
-            from service.threads import realtime as enter_realtime
-
-            enter_realtime(realtime)
+        bench_priority = None if floor else _enter_realtime(realtime)
         session = open_session(ZenohConfig(connect=[endpoint]))
         subs = [session.declare_subscriber(
             f"dvrk/{arm}/wrenchd/measured_cf",
@@ -259,7 +273,7 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
     finally:
         if session is not None:
             session.close()
-        if realtime is not None:
+        if bench_priority is not None:
             from service.threads import normal_scheduling
 
             normal_scheduling()
@@ -350,5 +364,5 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
             # the daemon's sample path (its default takes the real-time class where permitted)
             "realtime_priority": next((st.get("realtime_priority") for st in status.values()),
                                       realtime),
-            "bench_realtime_priority": realtime,
+            "bench_realtime_priority": bench_priority,
             "per_arm": per_arm}

@@ -124,6 +124,15 @@ def _cmd_echo(args: argparse.Namespace) -> int:
     return echo(args)
 
 
+def _realtime_setting(text: str) -> int | str:
+    if text in ("auto", "off"):
+        return text
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not auto, off or a priority") from None
+
+
 def _cmd_bench(args: argparse.Namespace) -> int:
     from service.bench import run
     from service.threads import one_compute_thread
@@ -232,10 +241,11 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--pin", action="store_true",
                        help="service/soak/floor: the daemon on the last CPU alone, its worker "
                             "and the bench on the others (the daemon's [cpus] settings)")
-    bench.add_argument("--realtime", type=int, default=None, metavar="PRIORITY",
-                       help="service/soak: the daemon's sample path and this bench's publisher "
-                            "and subscriber under SCHED_FIFO at PRIORITY (the daemon's [cpus] "
-                            "realtime_priority; needs CAP_SYS_NICE)")
+    bench.add_argument("--realtime", type=_realtime_setting, default="auto",
+                       metavar="auto|off|PRIORITY",
+                       help="service/soak: the daemon's [cpus] realtime_priority, which this "
+                            "bench's publisher and subscriber take too (default auto: "
+                            "SCHED_FIFO where permitted)")
     bench.set_defaults(func=_cmd_bench)
     for module in COMMAND_MODULES:
         importlib.import_module(module).register(sub)
