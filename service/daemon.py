@@ -57,6 +57,7 @@ from service.threads import normal_scheduling, realtime
 from service.worker import ProcessAdaptation, WorkerProcess
 
 SWITCH_INTERVAL_S = 2e-4
+LINK_CHECK_S = 0.5      # how often the session's routers and peers are counted [s]
 BATCH = 32              # samples of one arm estimated before the next arm's turn
 
 
@@ -179,6 +180,7 @@ class ArmRuntime:
         self.log_writer: LogWriterThread | None = None     # set by the daemon before start()
         self.console: Console | None = None                 # likewise
         self.realtime_priority: int | None = None           # likewise: the sample path's
+        self.zenoh_links: dict[str, int] = {"routers": 0, "peers": 0, "link_losses": 0}
         self._log_problem_reported = False
         self.pub_wrench = session.declare_publisher(self.keys["wrench"])
         self.pub_events = session.declare_publisher(self.keys["events"])
@@ -215,6 +217,7 @@ class ArmRuntime:
         s["latency_us"] = _percentiles(list(self.latency_us))
         s["encoding"] = self.cfg.encoding
         s["realtime_priority"] = self.realtime_priority
+        s["zenoh"] = dict(self.zenoh_links)
         s["keys"] = self.keys
         s["log"] = {"path": str(self.log.path) if self.log.path else None,
                     "written": self.log.written, "lost": self.log.lost,
@@ -385,6 +388,8 @@ class Daemon:
         self.log_writer: LogWriterThread | None = None
         self.console: Console | None = None
         self.realtime_priority: int | None = None
+        self._links: tuple[int, int] | None = None       # (routers, peers) last counted
+        self._links_next = 0.0
 
     def start(self) -> None:
         s = self.settings
@@ -515,8 +520,31 @@ class Daemon:
             now = time.monotonic()
             for arm in arms:
                 arm.housekeeping(now)
+            if now >= self._links_next:
+                self._links_next = now + LINK_CHECK_S
+                self._watch_links()
             if stopping:
                 break
+
+    def _watch_links(self) -> None:
+        """Count the routers and peers the session is connected to; every change is a
+        ``zenoh_link`` event on every arm (``lost`` when the last one went: what the daemon
+        publishes then reaches nobody, though its log keeps everything)."""
+        try:
+            links = (len(self.session.info.routers_zid()), len(self.session.info.peers_zid()))
+        except Exception:  # noqa: BLE001 - a session being closed
+            return
+        before, self._links = self._links, links
+        if before == links:
+            return
+        lost = sum(links) == 0 and before is not None
+        for arm in self.arms:
+            arm.zenoh_links.update(routers=links[0], peers=links[1])
+            arm.zenoh_links["link_losses"] += int(lost)
+            if before is None:                               # the first count: no change yet
+                continue
+            arm._publish_events([Event(time.time(), "zenoh_link", {
+                "arm": arm.name, "routers": links[0], "peers": links[1], "lost": lost})])
 
     @staticmethod
     def _handle_joint(group: list[tuple[ArmRuntime, list[tuple[int, bytes]]]]) -> None:

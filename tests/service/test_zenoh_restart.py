@@ -28,7 +28,8 @@ import numpy as np
 
 from adapters.messages import decode_wrench
 from adapters.zenoh_io import ZenohConfig, open_session
-from tests.service.test_daemon import free_port, wait_for
+from adapters.mcap_log import TOPIC_EVENTS
+from tests.service.test_daemon import free_port, read_mcap, wait_for
 
 KEYS = {k: f"dvrk/PSM2/{v}" for k, v in (("wrench", "wrenchd/measured_cf"),
                                          ("events", "wrenchd/events"),
@@ -196,6 +197,11 @@ def test_router_killed_and_restarted_mid_stream(tmp_path):
         assert resume_s < RESUME_S, resume_s
         print(f"router restart: wrenches again {resume_s:.2f} s after the new router started")
 
+        # adaptation goes on: a swap published after the restart (its rounds need a few
+        # hundred new samples: seconds, more on a loaded machine)
+        swaps = sum(e["kind"] == "model" for e in listener.events)
+        wait_for(lambda: sum(e["kind"] == "model" for e in listener.events) > swaps, 60.0,
+                 "a model swap after the router restart")
         assert daemon.poll() is None                         # the daemon never stopped
         assert listener.alive()                              # its liveliness token is back
         status = listener.status()                           # and its queryable answers
@@ -230,6 +236,13 @@ def test_router_killed_and_restarted_mid_stream(tmp_path):
     stamps = np.array([w[1] for w in listener.wrenches])
     assert np.all(np.diff(stamps) > 0)
     assert assert_swaps_validated(listener.events) >= 1      # adaptation went on
+    # the daemon saw its router go and come back: both are in its log (the first was
+    # published to nobody), and its status counts the loss
+    assert final["zenoh"]["link_losses"] == 1 and final["zenoh"]["routers"] == 1, final["zenoh"]
+    logs = sorted((tmp_path / "logs").glob("PSM2-*.mcap"))
+    links = [e for log in logs for e in map(json.loads, read_mcap(log)[TOPIC_EVENTS])
+             if e["kind"] == "zenoh_link"]
+    assert [(e["routers"], e["lost"]) for e in links] == [(0, True), (1, False)], links
 
 
 def test_peer_publisher_killed_and_restarted(tmp_path):
