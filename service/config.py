@@ -111,8 +111,9 @@ class CpuPlacement(BaseModel):
     realtime_priority: int | Literal["auto", "off"] = Field(
         default="auto",
         description="SCHED_FIFO priority (1-99) of the threads a sample passes through "
-                    "(zenoh's, the callbacks', estimation); the log writer and the console one "
-                    "step below; the adaptation worker stays in the normal class. An explicit "
+                    "(zenoh's, the callbacks', estimation); the daemon's other Python threads "
+                    "one step below; the adaptation worker and the simulated robots stay in "
+                    "the normal class. An explicit "
                     "priority needs CAP_SYS_NICE or an rtprio limit and is refused without; "
                     f"auto: {AUTO_REALTIME_PRIORITY} where permitted, else the normal class "
                     "(said once at start); off: the normal class")

@@ -462,6 +462,10 @@ class Daemon:
         if s.robot == "simulated":
             for arm in self.arms:
                 self.robots.append(subprocess.Popen(_robot_command(s, arm.name)))
+        if self.realtime_priority is not None:
+            # the main thread too, now that it has started every process it starts: it wakes
+            # five times a second, and so takes the GIL (see the log writer above)
+            realtime(max(1, self.realtime_priority - 1))
         for arm in self.arms:
             print(f"wrenchd: {arm.name} ({arm.cfg.encoding}) listening on "
                   f"'{arm.keys['measured_js']}', publishing wrenches on '{arm.keys['wrench']}', "
