@@ -215,6 +215,12 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
         drains = [_drain(daemon.stdout, workdir / "daemon.out"),
                   _drain(daemon.stderr, workdir / "daemon.err")]
         bench_priority = None if floor else _enter_realtime(realtime)
+        if bench_priority is not None:
+            # they take the GIL too: preempted while holding it, they would delay a callback
+            from service.threads import realtime as set_realtime
+
+            for thread in drains:
+                set_realtime(max(1, bench_priority - 1), thread.native_id)
         session = open_session(ZenohConfig(connect=[endpoint]))
         subs = [session.declare_subscriber(
             f"dvrk/{arm}/wrenchd/measured_cf",
