@@ -29,7 +29,7 @@ def _policy(pid: int, tid: int) -> tuple[str, int, int]:
     return name, int(fields[38]), int(fields[37])       # policy (41st), rt_priority (40th)
 
 
-def _config(tmp_path: Path, priority: int | None = PRIORITY) -> Path:
+def _config(tmp_path: Path, priority: int | None = PRIORITY, adaptation: bool = True) -> Path:
     config = tmp_path / "wrenchd.toml"
     setting = f"[cpus]\nrealtime_priority = {priority}" if priority is not None else ""
     config.write_text(f"""
@@ -39,6 +39,10 @@ robot = "external"
 listen = ["tcp/127.0.0.1:{free_port()}"]
 [log]
 directory = "{tmp_path / 'logs'}"
+[[arms]]
+name = "PSM1"
+[arms.pipeline.adaptation]
+enabled = {str(adaptation).lower()}
 """)
     return config
 
@@ -123,19 +127,24 @@ def test_a_daemon_that_may_not_is_refused_with_what_to_do_or_by_default_runs_nor
     # pytest's own temporary directories are root's alone
     with tempfile.TemporaryDirectory() as tmp:
         Path(tmp).chmod(0o777)
-        config = _config(Path(tmp))
+        # no adaptation worker: as user nobody here, multiprocessing's resource tracker (which
+        # its queues start) died at random, a fault of this set-up, not of scheduling
+        config = _config(Path(tmp), adaptation=False)
         config.chmod(0o644)
         run = subprocess.run([*unprivileged, str(config)], capture_output=True, text=True,
                              cwd=ROOT, env={**os.environ, "HOME": tmp}, timeout=120)
         default = Path(tmp) / "default"
         default.mkdir(mode=0o777)
-        config = _config(default, None)
+        config = _config(default, None, adaptation=False)
         config.chmod(0o644)
         daemon = subprocess.Popen([*unprivileged, str(config)], stdout=subprocess.PIPE,
                                   stderr=subprocess.PIPE, text=True, cwd=ROOT,
                                   env={**os.environ, "HOME": tmp})
         try:
-            assert "listening" in daemon.stdout.readline()
+            line = daemon.stdout.readline()
+            if "listening" not in line:
+                daemon.kill()
+                raise AssertionError(f"{line}{daemon.stdout.read()}{daemon.stderr.read()}")
             assert {p for _, p, _ in _threads(daemon.pid).values()} == {os.SCHED_OTHER}
         finally:
             daemon.send_signal(signal.SIGINT)
