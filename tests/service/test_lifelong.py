@@ -20,7 +20,7 @@ default this test runs): seed 3 1.16, 1.13, 1.13; seed 4 1.24, 1.28, 1.29; seed 
   ~0.8 N of it), and noise (sensor noise mapped to the tip) is only 0.2 N of the ~1 N level;
 * the 2.5 s delay line costs on seeds 3 and 5: at 1.5 s (onset margin 1.2 s) the ratio is
   1.10, 1.05, 1.05 on seed 3 and 1.09, 1.09, 1.12 on seed 5 (seed 4 unchanged, 1.25-1.29),
-  but the gate finds some contacts 2.1-2.5 s after they start (one each on this session
+  but the gate finds some contacts 2.0-2.5 s after they start (one each on this session
   and ``instrument-drift`` seed 3, three on ``trocar-contact`` seeds 3-4), and on
   ``trocar-contact`` seed 4 (180 s) the 1.5 s line let 270 contact samples through after
   the calibration minute (2.5 s: 0), so the delay stays;
