@@ -2,19 +2,42 @@
 
 ``insufflation-change`` (220 s, seed 3): 60 s contact-free calibration, contacts every ~20 s
 after it, the pressure steps 12 -> 20 mmHg at 88 s. Replayed through the daemon's pipeline
-(gated policy, inline adaptation in sample time) and with the ``frozen`` policy.
+(gated policy; replay's default adaptation: rounds in a forked worker, in sample time) and
+with the ``frozen`` policy.
 
 Issue 4 asks for two things. **No contact sample ever trains**: met here (asserted: zero
 offered samples truly in contact; before the gate's joint score, 131 of 26 183 were, all from
-one 2.8 N grasp the peak score never saw; also 0 on seed 4). **The free-motion error 60 s after
-the change is back within 10 % of its level before it**: NOT met (measured: post / pre =
-1.22 on this session, 1.26 on seed 4). What limits it, measured: the correction net tracks
-the recent trajectory, and the 2.5 s delay line that keeps contact onsets out of training
-makes its data stale; with a perfect (truth) gate the ratio is 1.16 at 2.5 s delay, 1.13 at
-1.5 s, 1.05 at 0.5 s and 1.00 with none, while the gate finds contacts 0.2-1.1 s after they
-start. So this test holds the pipeline to what it reaches: adaptation makes the error after
-the change clearly lower than the frozen net's, the change is real (the frozen error grows),
-and the ratio stays under 1.35.
+one 2.8 N grasp the peak score never saw; also 0 on seeds 4, 5 and 6). **The free-motion error
+60 s after the change is back within 10 % of its level before it**: NOT met. Measured with
+``levels`` below (post / pre; adaptation seeds 0, 1, 2 of ``AdaptationConfig.seed``; 0 is the
+default this test runs): seed 3 1.16, 1.13, 1.13; seed 4 1.24, 1.28, 1.29; seed 5 1.10,
+1.17, 1.18 (seed 6: 0.98). What limits it, measured:
+
+* not the gate alone: with a perfect gate (truth labels) and no delay line at all, the
+  ratio is 1.05 / 1.12 / 1.09 on seeds 3 / 4 / 5 (1.05 / 1.15 / 1.10 with adaptation seed
+  1), so seed 4 misses 1.10 even then: the correction net itself learns only part of the
+  change within the window (frozen: +2.0 N of error from the change on seed 4, gated keeps
+  ~0.8 N of it), and noise (sensor noise mapped to the tip) is only 0.2 N of the ~1 N level;
+* the 2.5 s delay line costs on seeds 3 and 5: at 1.5 s (onset margin 1.2 s) the ratio is
+  1.10, 1.05, 1.05 on seed 3 and 1.09, 1.09, 1.12 on seed 5 (seed 4 unchanged, 1.25-1.29),
+  but the gate finds some contacts 2.0-2.5 s after they start (one each on this session
+  and ``instrument-drift`` seed 3, three on ``trocar-contact`` seeds 3-4), and on
+  ``trocar-contact`` seed 4 (180 s) the 1.5 s line let 270 contact samples through after
+  the calibration minute (2.5 s: 0), so the delay stays;
+* tried without a systematic gain (each on seeds 3-5, the differences within the spread
+  of the adaptation seeds): rounds every 0.5 s, more Adam steps, a larger batch, lr 4e-3,
+  128 hidden units, a larger or recency-weighted reservoir, forgetting the reservoir after
+  a drift (worse: 1.22 / 1.56 / 1.30), a heavier share of the newest samples, recent_fraction
+  0.4 or 0.85, a larger minimum holdout, Adam moments kept between rounds, no drift
+  detection, gate train_sigma 3 or 5, max_growth 3, joint_exit_sigma 1.5. Less L2 weight
+  decay: 0.001 gives 1.34 / 1.16 / 1.00 and 1.32 / 0.98 / 1.10 (adaptation seeds 0, 2),
+  unstable; none, or decay towards the serving net, make the level before the change
+  1.1-1.6 N (default 0.94-1.16 N); averaging the candidates' weights (0.7 kept per round)
+  lowers the ratio by raising that level (1.02 and 1.22 N on seeds 3 and 5).
+
+So this test holds the pipeline to what it reaches: adaptation makes the error after the
+change clearly lower than the frozen net's, the change is real (the frozen error grows),
+and the ratio stays under 1.25 (measured 1.16 on this session).
 """
 
 import numpy as np
@@ -59,7 +82,7 @@ def test_gated_adaptation_recovers_from_the_insufflation_change(session):
     assert post < 0.7 * f_post, (post, f_post)             # adaptation pays after the change
     assert pre < 0.7 * f_pre, (pre, f_pre)                 # and before it (calibration)
     assert gated.status["counters"]["swaps"] > 0
-    assert post < 1.35 * pre, (pre, post)                  # issue: 1.10 (not met, see above)
+    assert post < 1.25 * pre, (pre, post)                  # issue: 1.10 (not met, see above)
 
     idx = np.searchsorted(session.joint_states.t, gated.offered_t)
     np.testing.assert_allclose(session.joint_states.t[idx], gated.offered_t, atol=1e-9)
