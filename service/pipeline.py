@@ -28,6 +28,7 @@ Per sample:
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from dataclasses import dataclass, field
 from typing import Any, Literal, Protocol
@@ -261,9 +262,15 @@ class ArmPipeline:
         return "joint state out of bounds"                     # not reached
 
     # -- per sample ---------------------------------------------------------------------
-    def process(self, msg: JointStateMsg) -> tuple[Estimate | None, list[Event]]:
-        """Run one decoded joint state through the pipeline."""
-        admitted = self._admit(msg)
+    def process(self, msg: JointStateMsg, checked: bool = False
+                ) -> tuple[Estimate | None, list[Event]]:
+        """Run one decoded joint state through the pipeline.
+
+        ``checked``: the caller has already found ``msg`` within ``config.validation`` (six
+        finite values each, within the bounds; replay checks a whole session at once), so
+        the per-sample check is skipped; everything else (stamp order, gaps) is as usual.
+        """
+        admitted = self._admit(msg, checked)
         if isinstance(admitted, list):
             return None, admitted
         return self._finish_one(msg, *admitted)
@@ -336,15 +343,18 @@ class ArmPipeline:
         events.extend(self._adapt(t))
         return est, events
 
-    def _admit(self, msg: JointStateMsg) -> tuple[float, list[Event], float | None] | list[Event]:
-        """Validation and stamp order: ``(t, events, gap_s)`` of a sample to estimate (``gap_s``
-        the time since the last one when it is a gap, else None), or the refusal's events."""
+    def _admit(self, msg: JointStateMsg, checked: bool = False
+               ) -> tuple[float, list[Event], float | None] | list[Event]:
+        """Validation (unless ``checked``) and stamp order: ``(t, events, gap_s)`` of a sample
+        to estimate (``gap_s`` the time since the last one when it is a gap, else None), or the
+        refusal's events."""
         self.counters.received += 1
         t = msg.stamp_ns / 1e9
         events: list[Event] = []
-        reason = self._validate(msg)
-        if reason is not None:
-            return [self._error(t, "invalid", reason)]
+        if not checked:
+            reason = self._validate(msg)
+            if reason is not None:
+                return [self._error(t, "invalid", reason)]
         last = self._last_ns
         if last is not None and msg.stamp_ns <= last:
             kind = "duplicate" if msg.stamp_ns == last else "time_backwards"
@@ -408,7 +418,7 @@ class ArmPipeline:
                     self.backend.drift(t)               # eager from the start
                 events.append(Event(t, "calibrating", {"arm": self.arm,
                                                        "until": self._calibration_end}))
-        if not np.isfinite(self._calibration_end):
+        if not math.isfinite(self._calibration_end):      # a float: math is cheaper
             return False
         if t < self._calibration_end:
             return True

@@ -266,15 +266,23 @@ class ReplayResult:
     meta: dict[str, Any] = field(default_factory=dict)
 
 
-def _accepted(pipeline: ArmPipeline, js) -> np.ndarray:
-    """Indices of the samples the pipeline will estimate: the bounds of its validation
-    (``pipeline.config.validation``) and strictly increasing stamps, vectorised."""
+def _valid(pipeline: ArmPipeline, js) -> np.ndarray:
+    """(N,) bool: the samples within the bounds of the pipeline's validation
+    (``pipeline.config.validation``; six finite values each), vectorised."""
     v = pipeline.config.validation
     ok = np.ones(len(js), dtype=bool)
     for values, lim in ((js.position, v.max_abs_position), (js.velocity, v.max_abs_velocity),
                         (js.effort, v.max_abs_effort)):
+        if values.ndim != 2 or values.shape[1] != N_JOINTS:
+            return np.zeros(len(js), dtype=bool)       # process() refuses and says why
         ok &= np.all(np.isfinite(values) & (np.abs(values) <= np.asarray(lim)), axis=1)
-    keep = np.flatnonzero(ok)
+    return ok
+
+
+def _accepted(pipeline: ArmPipeline, js, valid: np.ndarray | None = None) -> np.ndarray:
+    """Indices of the samples the pipeline will estimate: within the bounds of its validation
+    (``valid``, see :func:`_valid`) and strictly increasing stamps, vectorised."""
+    keep = np.flatnonzero(_valid(pipeline, js) if valid is None else valid)
     stamps = np.rint(js.t[keep] * 1e9).astype(np.int64)
     # JointStates are strictly increasing, so only equal rounded stamps can be refused
     dup = np.r_[False, np.diff(stamps) <= 0]
@@ -328,9 +336,11 @@ def _run(pipeline: ArmPipeline, session: Session, msgs, config: PipelineConfig, 
     offered: list[np.ndarray] = []
     pipeline.on_offer = offered.append
     start = time.perf_counter()
+    js = session.joint_states
+    # checked in one pass: process() skips its per-sample check of these (not of the others)
+    checked = _valid(pipeline, js).tolist()
     if batched:
-        js = session.joint_states
-        keep = _accepted(pipeline, js)
+        keep = _accepted(pipeline, js, np.asarray(checked, dtype=bool))
         t = np.array([msgs[i].stamp_ns for i in keep], dtype=np.int64) / 1e9
         feats = np.concatenate([js.position[keep], js.velocity[keep]], axis=1)
         pipeline.estimator = BatchedEstimator(pipeline.estimator, t, feats, js.effort[keep],
@@ -345,18 +355,41 @@ def _run(pipeline: ArmPipeline, session: Session, msgs, config: PipelineConfig, 
     version, stamp, sample = (np.zeros(n, dtype=np.int64) for _ in range(3))
     events: list[Event] = []
     k = 0
+    # the estimates are kept and copied into the arrays a batch at a time (row by row costs
+    # more than the rest of the loop; a batch keeps at most a few estimator blocks alive)
+    ests: list = []
+    rows: list[int] = []
+    keep_est, keep_row = ests.append, rows.append
+
+    def flush() -> None:
+        nonlocal k
+        if not ests:
+            return
+        b = k + len(ests)
+        wrench[k:b] = [e.wrench for e in ests]
+        external[k:b] = [e.external_torque for e in ests]
+        predicted[k:b] = [e.predicted_torque for e in ests]
+        free[k:b] = [e.free for e in ests]
+        score[k:b] = [e.score for e in ests]
+        version[k:b] = [e.model_version for e in ests]
+        stamp[k:b] = [e.stamp_ns for e in ests]
+        sample[k:b] = rows
+        k = b
+        ests.clear()
+        rows.clear()
+
     process = pipeline.process
-    for i, msg in enumerate(msgs):
-        est, evs = process(msg)
+    for i, (msg, ok) in enumerate(zip(msgs, checked)):
+        est, evs = process(msg, ok)
         if evs:
             events.extend(evs)
         if est is None:
             continue
-        wrench[k], external[k], predicted[k] = est.wrench, est.external_torque, \
-            est.predicted_torque
-        free[k], score[k], version[k] = est.free, est.score, est.model_version
-        stamp[k], sample[k] = est.stamp_ns, i
-        k += 1
+        keep_est(est)
+        keep_row(i)
+        if len(rows) >= 4096:
+            flush()
+    flush()
     wall = time.perf_counter() - start
     status = pipeline.status()
     return ReplayResult(
