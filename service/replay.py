@@ -133,7 +133,11 @@ class BatchedEstimator(TwoStepEstimator):
                     states, k, sizes = None, a, iter(STEP1_CHUNKS)
                     while k < b and not self._stop:
                         if k - self.cursor > STEP1_LEAD:
-                            time.sleep(0.002)
+                            # woken by the next block (no polling: a poll takes the GIL
+                            # from the pipeline); the timeout only guards against a miss
+                            with self._progress:
+                                if k - self.cursor > STEP1_LEAD and not self._stop:
+                                    self._progress.wait(0.05)
                             continue
                         stop = min(b, k + next(sizes, STEP1_CHUNKS[-1]))
                         x = torch.as_tensor(self.features[k:stop], dtype=fs.in_mean.dtype)
@@ -160,6 +164,8 @@ class BatchedEstimator(TwoStepEstimator):
     def close(self) -> None:
         """Stop and join the step-1 thread (before anything forks again)."""
         self._stop = True
+        with self._progress:
+            self._progress.notify_all()
         if self._thread is not None:
             self._thread.join()
             self._thread = None
@@ -208,6 +214,9 @@ class BatchedEstimator(TwoStepEstimator):
         b1 = min(i + self.block, len(self.t))
         if self._ready < b1:
             self._wait_step1(b1)
+        elif self._thread is not None and self._ready < self._n:
+            with self._progress:              # the step-1 thread may wait for the cursor
+                self._progress.notify_all()
         if self._gain_ready < b1:
             self._gains_upto(b1)
         rows = np.arange(i, b1)
