@@ -375,9 +375,10 @@ def _run(pipeline: ArmPipeline, session: Session, msgs, config: PipelineConfig, 
         if not ests:
             return
         b = k + len(ests)
-        wrench[k:b] = [e.wrench for e in ests]
-        external[k:b] = [e.external_torque for e in ests]
-        predicted[k:b] = [e.predicted_torque for e in ests]
+        m = b - k                    # concatenated: several times faster than from a list
+        wrench[k:b] = np.concatenate([e.wrench for e in ests]).reshape(m, N_JOINTS)
+        external[k:b] = np.concatenate([e.external_torque for e in ests]).reshape(m, N_JOINTS)
+        predicted[k:b] = np.concatenate([e.predicted_torque for e in ests]).reshape(m, N_JOINTS)
         free[k:b] = [e.free for e in ests]
         score[k:b] = [e.score for e in ests]
         version[k:b] = [e.model_version for e in ests]
