@@ -2,7 +2,9 @@
 
 The samples go through :meth:`service.pipeline.ArmPipeline.process`, the very method the
 daemon calls (validation, gate, drift, policy, delay line, adaptation, model swaps), in
-simulated time. The adaptation runs in a forked worker by default
+simulated time; the session's bounds are checked in one vectorised pass first, and
+``process`` skips its per-sample bounds check for the samples within them
+(``checked=True``; the others it refuses as usual). The adaptation runs in a forked worker by default
 (:class:`~service.replay_worker.WorkerAdaptation`: a round's net serves ``result_delay_s``
 of sample time after the round fell due, as in the daemon) or inline
 (:class:`~service.pipeline.InlineAdaptation`: a round runs at the sample at which it falls
