@@ -2,7 +2,9 @@
 
 The samples go through :meth:`service.pipeline.ArmPipeline.process`, the very method the
 daemon calls (validation, gate, drift, policy, delay line, adaptation, model swaps), in
-simulated time. The adaptation runs in a forked worker by default
+simulated time; the session's bounds are checked in one vectorised pass first, and
+``process`` skips its per-sample bounds check for the samples within them
+(``checked=True``; the others it refuses as usual). The adaptation runs in a forked worker by default
 (:class:`~service.replay_worker.WorkerAdaptation`: a round's net serves ``result_delay_s``
 of sample time after the round fell due, as in the daemon) or inline
 (:class:`~service.pipeline.InlineAdaptation`: a round runs at the sample at which it falls
@@ -133,7 +135,11 @@ class BatchedEstimator(TwoStepEstimator):
                     states, k, sizes = None, a, iter(STEP1_CHUNKS)
                     while k < b and not self._stop:
                         if k - self.cursor > STEP1_LEAD:
-                            time.sleep(0.002)
+                            # woken by the next block (no polling: a poll takes the GIL
+                            # from the pipeline); the timeout only guards against a miss
+                            with self._progress:
+                                if k - self.cursor > STEP1_LEAD and not self._stop:
+                                    self._progress.wait(0.05)
                             continue
                         stop = min(b, k + next(sizes, STEP1_CHUNKS[-1]))
                         x = torch.as_tensor(self.features[k:stop], dtype=fs.in_mean.dtype)
@@ -160,6 +166,8 @@ class BatchedEstimator(TwoStepEstimator):
     def close(self) -> None:
         """Stop and join the step-1 thread (before anything forks again)."""
         self._stop = True
+        with self._progress:
+            self._progress.notify_all()
         if self._thread is not None:
             self._thread.join()
             self._thread = None
@@ -208,6 +216,9 @@ class BatchedEstimator(TwoStepEstimator):
         b1 = min(i + self.block, len(self.t))
         if self._ready < b1:
             self._wait_step1(b1)
+        elif self._thread is not None and self._ready < self._n:
+            with self._progress:              # the step-1 thread may wait for the cursor
+                self._progress.notify_all()
         if self._gain_ready < b1:
             self._gains_upto(b1)
         rows = np.arange(i, b1)
@@ -266,15 +277,23 @@ class ReplayResult:
     meta: dict[str, Any] = field(default_factory=dict)
 
 
-def _accepted(pipeline: ArmPipeline, js) -> np.ndarray:
-    """Indices of the samples the pipeline will estimate: the bounds of its validation
-    (``pipeline.config.validation``) and strictly increasing stamps, vectorised."""
+def _valid(pipeline: ArmPipeline, js) -> np.ndarray:
+    """(N,) bool: the samples within the bounds of the pipeline's validation
+    (``pipeline.config.validation``; six finite values each), vectorised."""
     v = pipeline.config.validation
     ok = np.ones(len(js), dtype=bool)
     for values, lim in ((js.position, v.max_abs_position), (js.velocity, v.max_abs_velocity),
                         (js.effort, v.max_abs_effort)):
+        if values.ndim != 2 or values.shape[1] != N_JOINTS:
+            return np.zeros(len(js), dtype=bool)       # process() refuses and says why
         ok &= np.all(np.isfinite(values) & (np.abs(values) <= np.asarray(lim)), axis=1)
-    keep = np.flatnonzero(ok)
+    return ok
+
+
+def _accepted(pipeline: ArmPipeline, js, valid: np.ndarray | None = None) -> np.ndarray:
+    """Indices of the samples the pipeline will estimate: within the bounds of its validation
+    (``valid``, see :func:`_valid`) and strictly increasing stamps, vectorised."""
+    keep = np.flatnonzero(_valid(pipeline, js) if valid is None else valid)
     stamps = np.rint(js.t[keep] * 1e9).astype(np.int64)
     # JointStates are strictly increasing, so only equal rounded stamps can be refused
     dup = np.r_[False, np.diff(stamps) <= 0]
@@ -328,9 +347,11 @@ def _run(pipeline: ArmPipeline, session: Session, msgs, config: PipelineConfig, 
     offered: list[np.ndarray] = []
     pipeline.on_offer = offered.append
     start = time.perf_counter()
+    js = session.joint_states
+    # checked in one pass: process() skips its per-sample check of these (not of the others)
+    checked = _valid(pipeline, js).tolist()
     if batched:
-        js = session.joint_states
-        keep = _accepted(pipeline, js)
+        keep = _accepted(pipeline, js, np.asarray(checked, dtype=bool))
         t = np.array([msgs[i].stamp_ns for i in keep], dtype=np.int64) / 1e9
         feats = np.concatenate([js.position[keep], js.velocity[keep]], axis=1)
         pipeline.estimator = BatchedEstimator(pipeline.estimator, t, feats, js.effort[keep],
@@ -345,18 +366,42 @@ def _run(pipeline: ArmPipeline, session: Session, msgs, config: PipelineConfig, 
     version, stamp, sample = (np.zeros(n, dtype=np.int64) for _ in range(3))
     events: list[Event] = []
     k = 0
+    # the estimates are kept and copied into the arrays a batch at a time (row by row costs
+    # more than the rest of the loop; a batch keeps at most a few estimator blocks alive)
+    ests: list = []
+    rows: list[int] = []
+    keep_est, keep_row = ests.append, rows.append
+
+    def flush() -> None:
+        nonlocal k
+        if not ests:
+            return
+        b = k + len(ests)
+        m = b - k                    # concatenated: several times faster than from a list
+        wrench[k:b] = np.concatenate([e.wrench for e in ests]).reshape(m, N_JOINTS)
+        external[k:b] = np.concatenate([e.external_torque for e in ests]).reshape(m, N_JOINTS)
+        predicted[k:b] = np.concatenate([e.predicted_torque for e in ests]).reshape(m, N_JOINTS)
+        free[k:b] = [e.free for e in ests]
+        score[k:b] = [e.score for e in ests]
+        version[k:b] = [e.model_version for e in ests]
+        stamp[k:b] = [e.stamp_ns for e in ests]
+        sample[k:b] = rows
+        k = b
+        ests.clear()
+        rows.clear()
+
     process = pipeline.process
-    for i, msg in enumerate(msgs):
-        est, evs = process(msg)
+    for i, (msg, ok) in enumerate(zip(msgs, checked)):
+        est, evs = process(msg, ok)
         if evs:
             events.extend(evs)
         if est is None:
             continue
-        wrench[k], external[k], predicted[k] = est.wrench, est.external_torque, \
-            est.predicted_torque
-        free[k], score[k], version[k] = est.free, est.score, est.model_version
-        stamp[k], sample[k] = est.stamp_ns, i
-        k += 1
+        keep_est(est)
+        keep_row(i)
+        if len(rows) >= 4096:
+            flush()
+    flush()
     wall = time.perf_counter() - start
     status = pipeline.status()
     return ReplayResult(

@@ -100,7 +100,9 @@ class WorkerAdaptation:
         child.close()
         k = config.window * 12
         self._window_cols = k                   # row layout: window, step-1, measured
-        self._rows = np.zeros((256, k + 2 * N_JOINTS), dtype=np.float32)
+        # the offered arrays of this chunk, kept as given (the pipeline never changes an
+        # array it has offered) and packed into one float32 array when the chunk is sent
+        self._offered: tuple[list[np.ndarray], ...] = ([], [], [])
         self._n_rows = 0                        # rows offered in this chunk
         self._pending = 0                       # of which offered since the last call
         self._kinds: list[int] = []
@@ -120,16 +122,26 @@ class WorkerAdaptation:
     # -- the pipeline's calls -----------------------------------------------------------
     def offer(self, windows, step1, measured) -> None:
         n = len(step1)
-        a, b = self._n_rows, self._n_rows + n
-        if b > len(self._rows):
-            grown = np.zeros((max(2 * len(self._rows), b), self._rows.shape[1]), np.float32)
-            grown[:a] = self._rows[:a]
-            self._rows = grown
-        # one copy into the chunk, cast to float32 as Adapter.add casts
-        np.concatenate((windows.reshape(n, self._window_cols), step1, measured), axis=1,
-                       out=self._rows[a:b])
-        self._n_rows = b
+        w, s, m = self._offered
+        w.append(windows)
+        s.append(step1)
+        m.append(measured)
+        self._n_rows += n
         self._pending += n
+
+    def _packed_rows(self) -> np.ndarray:
+        """This chunk's offered rows, ``[window, step-1, measured]`` per row, cast to float32
+        as :meth:`Adapter.add` casts (element by element: the same numbers as row by row)."""
+        w, s, m = self._offered
+        k, n = self._window_cols, self._n_rows
+        rows = np.empty((n, k + 2 * N_JOINTS), dtype=np.float32)
+        if n:
+            rows[:, :k] = np.concatenate(w).reshape(n, k)
+            rows[:, k:k + N_JOINTS] = np.concatenate(s)
+            rows[:, k + N_JOINTS:] = np.concatenate(m)
+        for part in self._offered:
+            part.clear()
+        return rows
 
     def _call(self, kind: int, t: float) -> None:
         self._kinds.append(kind)
@@ -184,8 +196,8 @@ class WorkerAdaptation:
     # -- plumbing -----------------------------------------------------------------------
     def _send(self) -> None:
         if self._kinds or self._n_rows:
-            self._conn.send((self._rows[:self._n_rows].copy(), self._kinds, self._times,
-                             self._counts, self._pending))
+            self._conn.send((self._packed_rows(), self._kinds, self._times, self._counts,
+                             self._pending))
             self._n_rows = self._pending = 0
             self._kinds, self._times, self._counts = [], [], []
             self._in_flight += 1

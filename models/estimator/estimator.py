@@ -63,6 +63,15 @@ class EstimatorOutput:
     step1_torque: np.ndarray | None = None
     window: np.ndarray | None = None
 
+    def __init__(self, t: float, predicted_torque: np.ndarray, external_torque: np.ndarray,
+                 wrench: np.ndarray, restarted: bool, step1_torque: np.ndarray | None = None,
+                 window: np.ndarray | None = None) -> None:
+        # One per sample: a dict update instead of the generated frozen __init__'s
+        # object.__setattr__ per field; immutable all the same.
+        self.__dict__.update(t=t, predicted_torque=predicted_torque,
+                             external_torque=external_torque, wrench=wrench,
+                             restarted=restarted, step1_torque=step1_torque, window=window)
+
 
 @dataclass(frozen=True)
 class EstimatorBatch:

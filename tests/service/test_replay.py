@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import subprocess
 import sys
@@ -22,7 +23,7 @@ from service.policies import Policy, get_policy, policy_names, register_policy
 from service.replay import STEP1_CHUNKS, BatchedEstimator, replay
 from service.replay_metrics import replay_metrics
 from service.replay_output import write_replay_mcap
-from service.replay_source import load_session
+from service.replay_source import joint_state_messages, load_session
 
 ROOT = Path(__file__).resolve().parents[2]
 # short sessions: calibration 3 s so the gate, the delay line and rounds all act
@@ -66,6 +67,37 @@ def test_batched_equals_streaming(fs, contact_session, policy):
     np.testing.assert_allclose(b.external, a.external, rtol=0, atol=1e-5)
     np.testing.assert_allclose(b.wrench, a.wrench, rtol=0, atol=1e-4)
     np.testing.assert_array_equal(a.offered_t, b.offered_t)
+
+
+def test_replay_refuses_what_process_refuses(fs, contact_session):
+    """Replay checks the session's bounds in one pass and lets ``process`` skip its own
+    check of those samples: the refusals (events, counters) and estimates are still those
+    of ``process`` checking every sample itself."""
+    js = contact_session.joint_states
+    effort, position = js.effort.copy(), js.position.copy()
+    effort[50, 2] = 500.0                                 # beyond the 200 N insertion bound
+    position[80, 0] = -4.0                                # beyond 3.2 rad
+    bad = dataclasses.replace(js, effort=effort, position=position)
+    velocity = bad.velocity.copy()
+    velocity[120, 3] = np.nan                             # past JointStates' own check
+    object.__setattr__(bad, "velocity", velocity)
+    session = dataclasses.replace(contact_session, joint_states=bad)
+    cfg = get_policy("frozen").configure(BASE)
+    r = replay(session, fs, cfg, step1="kernel")
+    pipeline = ArmPipeline("PSM1", fs, cfg)
+    events, stamps, wrench = [], [], []
+    for msg in joint_state_messages(bad):
+        est, evs = pipeline.process(msg)
+        events += evs
+        if est is not None:
+            stamps.append(est.stamp_ns)
+            wrench.append(est.wrench)
+    errors = [e.to_json() for e in events if e.kind == "error"]
+    assert [e["reason"][:8] for e in errors] == ["effort[3", "position", "velocity"]
+    assert [e.to_json() for e in r.events] == [e.to_json() for e in events]
+    assert r.status["counters"] == pipeline.status()["counters"]
+    np.testing.assert_array_equal(r.stamp_ns, stamps)
+    np.testing.assert_allclose(r.wrench, wrench, rtol=0, atol=1e-4)
 
 
 def test_replay_is_deterministic(fs, contact_session, tmp_path):
