@@ -140,7 +140,9 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     one_compute_thread()           # the bench process; the daemon and worker do it themselves
 
     if args.duration is None:
-        args.duration = {"service": 20.0, "floor": 20.0, "arm": 20.0,
+        # replay: a 10 min session (60x real time measured); a shorter one is mostly the
+        # calibration minute, whose eager rounds the worker cannot keep up with (38-44x)
+        args.duration = {"service": 20.0, "floor": 20.0, "arm": 20.0, "replay": 600.0,
                          "soak": 1800.0}.get(args.kind, 60.0)
     return run(args.kind, args.json, args.duration, args.arms, args.rate, args.pin,
                args.realtime)
@@ -235,7 +237,8 @@ def build_parser() -> argparse.ArgumentParser:
                             "replay throughput")
     bench.add_argument("--json", help="also write the result to this file")
     bench.add_argument("--duration", type=float, default=None,
-                       help="inference/replay: session length [s] (60); service: measured [s] (20)")
+                       help="inference: session length [s] (60); replay: session length "
+                            "[s] (600); service: measured [s] (20)")
     bench.add_argument("--arms", type=int, default=1, help="service: arms at once (PSM1..)")
     bench.add_argument("--rate", type=float, default=1000.0, help="service: rate per arm [Hz]")
     bench.add_argument("--pin", action="store_true",
