@@ -109,26 +109,6 @@ def _stolen_windows(steal: list[tuple[float, int | None]]) -> list[tuple[float, 
     return out
 
 
-def _enter_realtime(setting: int | str) -> int | None:
-    """Put this process's threads from now on (zenoh's, the subscriber callbacks', the
-    publisher) in the real-time class as the daemon's ``realtime_priority`` ``setting`` would;
-    the priority taken, or None."""
-    from models.errors import ConfigError
-    from service.config import AUTO_REALTIME_PRIORITY
-    from service.threads import realtime
-
-    if setting == "off":
-        return None
-    priority = AUTO_REALTIME_PRIORITY if setting == "auto" else int(setting)
-    try:
-        realtime(priority)
-    except ConfigError:
-        if setting != "auto":
-            raise
-        return None
-    return priority
-
-
 def _children(pid: int) -> list[int]:
     try:
         return [int(c) for c in Path(f"/proc/{pid}/task/{pid}/children").read_text().split()]
@@ -214,7 +194,10 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
                 raise RuntimeError(f"daemon did not start: {line}{daemon.stderr.read()}")
         drains = [_drain(daemon.stdout, workdir / "daemon.out"),
                   _drain(daemon.stderr, workdir / "daemon.err")]
-        bench_priority = None if floor else _enter_realtime(realtime)
+        from service.threads import enter_realtime
+
+        # as the daemon's setting says (its default takes the real-time class where it may)
+        bench_priority = None if floor else enter_realtime(realtime)
         if bench_priority is not None:
             # they take the GIL too: preempted while holding it, they would delay a callback
             from service.threads import realtime as set_realtime

@@ -26,6 +26,7 @@ from adapters.mcap_log import LogConfig
 from adapters.zenoh_io import ZenohConfig
 from models.errors import ConfigError
 from service.pipeline import PipelineConfig
+from service.threads import AUTO_REALTIME_PRIORITY
 
 #: Loopback by default: nothing leaves the machine unless the user says so.
 DEFAULT_LISTEN = "tcp/127.0.0.1:7447"
@@ -88,10 +89,6 @@ class RingConfig(BaseModel):
 
     capacity: int = Field(default=2000, ge=1,
                           description="queued samples; beyond, the oldest is dropped and counted")
-
-
-#: The real-time priority ``auto`` takes: low in the 1-99 range, under a robot controller's own.
-AUTO_REALTIME_PRIORITY = 10
 
 
 class CpuPlacement(BaseModel):

@@ -50,10 +50,10 @@ from adapters.zenoh_io import open_session
 from models.errors import ConfigError, DataError
 from models.estimator.free_space import FreeSpaceModel
 from models.series import JOINT_NAMES
-from service.config import AUTO_REALTIME_PRIORITY, ArmConfig, ServiceSettings
+from service.config import ArmConfig, ServiceSettings
 from service.adaptation import normalisation_of
 from service.pipeline import ArmPipeline, Estimate, Event
-from service.threads import normal_scheduling, realtime
+from service.threads import enter_realtime, normal_scheduling, realtime
 from service.worker import ProcessAdaptation, WorkerProcess
 
 SWITCH_INTERVAL_S = 2e-4
@@ -476,17 +476,12 @@ class Daemon:
         priority this process may not take is refused (:class:`ConfigError`), ``auto`` falls
         back to the normal class and says so."""
         wanted = self.settings.cpus.realtime_priority
-        if wanted == "off":
-            return None
-        priority = AUTO_REALTIME_PRIORITY if wanted == "auto" else int(wanted)
-        try:
-            realtime(priority)
-        except ConfigError:
-            if wanted != "auto":
-                raise
-            print("wrenchd: real-time scheduling is not permitted here, so the sample path runs "
-                  "in the normal class (latency then depends on what else runs; see [cpus] "
-                  "realtime_priority)", file=sys.stderr, flush=True)
+        priority = enter_realtime(wanted)
+        if priority is None:
+            if wanted == "auto":
+                print("wrenchd: real-time scheduling is not permitted here, so the sample path "
+                      "runs in the normal class (latency then depends on what else runs; see "
+                      "[cpus] realtime_priority)", file=sys.stderr, flush=True)
             return None
         normal_scheduling()
         return priority

@@ -19,6 +19,9 @@ import os
 
 from models.errors import ConfigError
 
+#: The real-time priority ``auto`` takes: low in the 1-99 range, under a robot controller's own.
+AUTO_REALTIME_PRIORITY = 10
+
 
 def one_compute_thread() -> None:
     """Limit NumPy's BLAS and torch to one thread in this process."""
@@ -41,6 +44,23 @@ def realtime(priority: int, tid: int = 0) -> None:
             f"scheduling ({exc.strerror}); give it CAP_SYS_NICE or an rtprio limit of at "
             f"least {priority} (ulimit -r, /etc/security/limits.conf), or leave the setting "
             f"unset") from None
+
+
+def enter_realtime(setting: int | str) -> int | None:
+    """Put the calling thread (and what it starts from now on) in the real-time class as a
+    ``realtime_priority`` ``setting`` says: ``off``, none; ``auto``, at
+    :data:`AUTO_REALTIME_PRIORITY` where this process may, else none; a priority, that one or
+    :class:`ConfigError`. Returns the priority taken, or None."""
+    if setting == "off":
+        return None
+    priority = AUTO_REALTIME_PRIORITY if setting == "auto" else int(setting)
+    try:
+        realtime(priority)
+    except ConfigError:
+        if setting != "auto":
+            raise
+        return None
+    return priority
 
 
 def normal_scheduling(tid: int = 0) -> None:

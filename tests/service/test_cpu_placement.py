@@ -12,7 +12,7 @@ import pytest
 
 from models.errors import ConfigError
 from service.config import load_settings
-from tests.service.test_daemon import free_port, wait_for
+from tests.service.test_daemon import children_of, free_port, wait_for
 
 
 def _allowed(pid: int, tid: int | None = None) -> str:
@@ -49,20 +49,13 @@ directory = "{tmp_path / 'logs'}"
                               text=True)
     try:
         assert "listening" in daemon.stdout.readline()
-        children: list[int] = []
-
-        def worker_started() -> bool:
-            children[:] = [int(c) for c in Path(f"/proc/{daemon.pid}/task/{daemon.pid}/children")
-                           .read_text().split()]
-            return bool(children)
-
-        wait_for(worker_started, 20.0, "the adaptation worker")
+        wait_for(lambda: children_of(daemon.pid), 20.0, "the adaptation worker")
         threads = [int(t) for t in os.listdir(f"/proc/{daemon.pid}/task")]
         assert len(threads) > 3                         # estimation, log, zenoh's own threads
         assert {_allowed(daemon.pid, t) for t in threads} == {str(daemon_cpu)}
         # the worker (spawned: it imports torch first) sets its own when it starts
-        wait_for(lambda: worker_started() and str(worker_cpu) in
-                 {_allowed(c) for c in children}, 30.0, "the worker on its CPU")
+        wait_for(lambda: str(worker_cpu) in {_allowed(c) for c in children_of(daemon.pid)},
+                 30.0, "the worker on its CPU")
     finally:
         daemon.send_signal(signal.SIGINT)
         out, err = daemon.communicate(timeout=60)

@@ -15,7 +15,7 @@ import pytest
 
 from models.errors import ConfigError
 from service.config import AUTO_REALTIME_PRIORITY, load_settings
-from tests.service.test_daemon import free_port, wait_for
+from tests.service.test_daemon import children_of, free_port, wait_for
 
 ROOT = Path(__file__).resolve().parents[2]
 PRIORITY = 7
@@ -88,14 +88,8 @@ def test_a_samples_threads_are_real_time_and_the_rest_is_not(tmp_path):
                               stderr=subprocess.PIPE, text=True, cwd=ROOT)
     try:
         assert "listening" in daemon.stdout.readline()
-        children: list[int] = []
-
-        def worker_started() -> bool:
-            children[:] = [int(c) for c in Path(f"/proc/{daemon.pid}/task/{daemon.pid}/children")
-                           .read_text().split()]
-            return bool(children)
-
-        wait_for(worker_started, 20.0, "the adaptation worker")
+        wait_for(lambda: children_of(daemon.pid), 20.0, "the adaptation worker")
+        children = children_of(daemon.pid)
         threads = _threads(daemon.pid)
         fifo = {tid for tid, (_, policy, prio) in threads.items()
                 if policy == os.SCHED_FIFO and prio == PRIORITY}
