@@ -34,6 +34,7 @@ import numpy as np
 
 from adapters.messages import encode_joint_state
 from adapters.zenoh_io import ZenohConfig, open_session
+from service.threads import enter_realtime, normal_scheduling, realtime_below
 
 STEAL_PERIOD_S = 0.1    # how often the hypervisor's steal counter is read while publishing
 
@@ -194,16 +195,11 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
                 raise RuntimeError(f"daemon did not start: {line}{daemon.stderr.read()}")
         drains = [_drain(daemon.stdout, workdir / "daemon.out"),
                   _drain(daemon.stderr, workdir / "daemon.err")]
-        from service.threads import enter_realtime
-
         # as the daemon's setting says (its default takes the real-time class where it may)
         bench_priority = None if floor else enter_realtime(realtime)
         if bench_priority is not None:
-            # they take the GIL too: preempted while holding it, they would delay a callback
-            from service.threads import realtime as set_realtime
-
-            for thread in drains:
-                set_realtime(max(1, bench_priority - 1), thread.native_id)
+            for thread in drains:          # they take the GIL too, beside the callbacks
+                realtime_below(bench_priority, thread.native_id)
         session = open_session(ZenohConfig(connect=[endpoint]))
         subs = [session.declare_subscriber(
             f"dvrk/{arm}/wrenchd/measured_cf",
@@ -263,8 +259,6 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
         if session is not None:
             session.close()
         if bench_priority is not None:
-            from service.threads import normal_scheduling
-
             normal_scheduling()
         daemon.send_signal(signal.SIGINT)
         try:
@@ -351,7 +345,7 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
             "cpus": ({"daemon": placement[0], "worker_and_bench": placement[1]}
                      if placement else None),
             # the daemon's sample path (its default takes the real-time class where permitted)
-            "realtime_priority": next((st.get("realtime_priority") for st in status.values()),
-                                      realtime),
+            "realtime_priority": None if floor else next(
+                (st.get("realtime_priority") for st in status.values()), realtime),
             "bench_realtime_priority": bench_priority,
             "per_arm": per_arm}

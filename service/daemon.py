@@ -53,7 +53,7 @@ from models.series import JOINT_NAMES
 from service.config import ArmConfig, ServiceSettings
 from service.adaptation import normalisation_of
 from service.pipeline import ArmPipeline, Estimate, Event
-from service.threads import enter_realtime, normal_scheduling, realtime
+from service.threads import enter_realtime, normal_scheduling, realtime, realtime_below
 from service.worker import ProcessAdaptation, WorkerProcess
 
 SWITCH_INTERVAL_S = 2e-4
@@ -457,7 +457,7 @@ class Daemon:
             # preempted by other programs while holding it would hold up estimation with it.
             # One step below, they never preempt the sample path.
             for thread in (self.log_writer.thread, self.console.thread):
-                realtime(max(1, self.realtime_priority - 1), thread.native_id)
+                realtime_below(self.realtime_priority, thread.native_id)
             normal_scheduling()
         if s.robot == "simulated":
             for arm in self.arms:
@@ -465,7 +465,7 @@ class Daemon:
         if self.realtime_priority is not None:
             # the main thread too, now that it has started every process it starts: it wakes
             # five times a second, and so takes the GIL (see the log writer above)
-            realtime(max(1, self.realtime_priority - 1))
+            realtime_below(self.realtime_priority)
         for arm in self.arms:
             print(f"wrenchd: {arm.name} ({arm.cfg.encoding}) listening on "
                   f"'{arm.keys['measured_js']}', publishing wrenches on '{arm.keys['wrench']}', "

@@ -46,6 +46,13 @@ def realtime(priority: int, tid: int = 0) -> None:
             f"unset") from None
 
 
+def realtime_below(priority: int, tid: int = 0) -> None:
+    """Thread ``tid`` (0: the calling thread) one step under ``priority`` in the real-time
+    class: the threads that take the GIL beside a real-time sample path, which a normal-class
+    thread preempted while holding it would hold up, but which must never preempt it."""
+    realtime(max(1, priority - 1), tid)
+
+
 def enter_realtime(setting: int | str) -> int | None:
     """Put the calling thread (and what it starts from now on) in the real-time class as a
     ``realtime_priority`` ``setting`` says: ``off``, none; ``auto``, at
