@@ -36,7 +36,7 @@ import torch
 from pydantic import BaseModel, ConfigDict, Field
 
 from models.estimator.corr_finetune import CorrFineTuner
-from models.estimator.correction import Corr, CorrConfig
+from models.estimator.correction import Corr, CorrConfig, CorrKernel
 from models.series import N_JOINTS
 
 
@@ -84,6 +84,9 @@ class RoundResult:
     n_holdout: int
     eager: bool
     state_dict: dict[str, np.ndarray] | None = None
+    #: the accepted net's serving kernel, built where the round ran (the adaptation worker),
+    #: so the process that serves swaps a reference instead of building a module
+    kernel: CorrKernel | None = None
 
     def summary(self) -> dict[str, Any]:
         return {"t": self.t, "accepted": self.accepted, "version": self.version,
@@ -179,12 +182,6 @@ def zero_corr(config: CorrConfig, windows: np.ndarray, step1: np.ndarray, seed: 
 
 def state_to_numpy(corr: Corr) -> dict[str, np.ndarray]:
     return {k: v.detach().cpu().numpy().copy() for k, v in corr.state_dict().items()}
-
-
-def corr_from_numpy(config: CorrConfig, state: dict[str, np.ndarray]) -> Corr:
-    corr = Corr(config)
-    corr.load_state_dict({k: torch.from_numpy(np.asarray(v)) for k, v in state.items()})
-    return corr.eval()
 
 
 def _lemire_draws(rng: np.random.Generator, calls: list[tuple[int, int]]) -> np.ndarray | None:
@@ -457,5 +454,6 @@ class Adapter:
             self.corr = candidate.eval()
             self.version += 1
             self.accepted += 1
-        return RoundResult(t, accepted, self.version, before, after, n_train, n_holdout,
-                           eager, state_to_numpy(candidate) if accepted else None)
+        state = state_to_numpy(candidate) if accepted else None
+        return RoundResult(t, accepted, self.version, before, after, n_train, n_holdout, eager,
+                           state, CorrKernel.from_state(state, self.corr.window) if accepted else None)

@@ -45,8 +45,7 @@ from models.estimator.estimator import EstimatorConfig, TwoStepEstimator
 from models.estimator.free_space import FreeSpaceModel
 from models.gate import FreeMotionGate, GateConfig, GateDecision
 from models.series import N_JOINTS
-from service.adaptation import (Adapter, AdaptationConfig, RoundResult, corr_from_numpy,
-                                normalisation_of)
+from service.adaptation import Adapter, AdaptationConfig, RoundResult, normalisation_of
 
 POLICIES = ("gated", "ungated", "frozen", "drift-triggered", "periodic-reset")
 
@@ -535,8 +534,8 @@ class ArmPipeline:
         events = [Event(result.t, "round", {"arm": self.arm, **{
             k: v for k, v in result.summary().items() if k != "t"}})]
         if result.accepted and result.state_dict is not None:
-            corr = corr_from_numpy(self.estimator.correction.config, result.state_dict)
-            self.estimator.swap_correction(corr)
+            # a reference swap: the worker sent the kernel ready to serve
+            self.estimator.swap_correction_state(result.state_dict, result.kernel)
             self.counters.swaps += 1
             self.model_version = result.version
             self.model_validation = result.val_after

@@ -248,6 +248,10 @@ class BatchedEstimator(TwoStepEstimator):
         super().swap_correction(correction)
         self._b1 = min(self._b1, self.cursor)          # recompute from the next sample on
 
+    def swap_correction_state(self, state, kernel=None) -> None:
+        super().swap_correction_state(state, kernel)
+        self._b1 = min(self._b1, self.cursor)
+
 
 @dataclass
 class ReplayResult:

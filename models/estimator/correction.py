@@ -58,6 +58,15 @@ class Corr(nn.Module):
     def window(self) -> int:
         return self.config.window
 
+    @classmethod
+    def from_state(cls, config: CorrConfig, state: dict[str, np.ndarray]) -> Corr:
+        """An eval-mode net of ``config`` holding ``state`` (a ``state_dict`` as NumPy arrays),
+        in the state's float type."""
+        f64 = np.asarray(state["net.0.weight"]).dtype == np.float64
+        corr = cls(config).to(torch.float64 if f64 else torch.float32)
+        corr.load_state_dict({k: torch.from_numpy(np.array(v)) for k, v in state.items()})
+        return corr.eval()
+
     def set_normalisation(self, features: np.ndarray, step1_torques: np.ndarray) -> None:
         """Store mean/std of (N, 12) training features and (N, 6) step-1 torques."""
         f = np.asarray(features, dtype=np.float64).reshape(-1, N_FEATURES)
@@ -103,14 +112,30 @@ class CorrKernel:
     """Eval-mode :class:`Corr` on NumPy, normalisation folded into the weights."""
 
     def __init__(self, corr: Corr, dtype: np.dtype) -> None:
-        w = corr.window
-        shift = np.concatenate([np.tile(corr.in_mean.double().numpy(), w),
-                                corr.tau_mean.double().numpy()])
-        scale = np.concatenate([np.tile(corr.in_std.double().numpy(), w),
-                                corr.tau_std.double().numpy()])
+        state = {k: v.detach().cpu().numpy() for k, v in corr.state_dict().items()}
+        self._build(state, corr.window, dtype)
+
+    @classmethod
+    def from_state(cls, state: dict[str, np.ndarray], window: int,
+                   dtype: np.dtype | None = None) -> CorrKernel:
+        """The kernel of the ``Corr`` whose ``state_dict`` (as NumPy arrays) is ``state``, built
+        without a torch module: the same numbers as ``Corr.kernel()`` of that net. ``dtype``
+        defaults to the state's (float32 for a float32 net)."""
+        kernel = cls.__new__(cls)
+        kernel._build(state, window, np.dtype(dtype if dtype is not None
+                                                else state["net.0.weight"].dtype))
+        return kernel
+
+    def _build(self, state: dict[str, np.ndarray], w: int, dtype: np.dtype) -> None:
+        f64 = {k: np.asarray(v, dtype=np.float64) for k, v in state.items()}
+        shift = np.concatenate([np.tile(f64["in_mean"], w), f64["tau_mean"]])
+        scale = np.concatenate([np.tile(f64["in_std"], w), f64["tau_std"]])
         self.window, self.dtype = w, dtype
-        self.mlp = MLPKernel(list(corr.net), dtype, in_shift=shift, in_scale=scale,
-                             out_shift=np.zeros(N_JOINTS), out_scale=corr.tau_std.double().numpy())
+        self.mlp = MLPKernel.from_arrays(
+            [(f64["net.0.weight"], f64["net.0.bias"], True),
+             (f64["net.2.weight"], f64["net.2.bias"], False)], dtype,
+            in_shift=shift, in_scale=scale, out_shift=np.zeros(N_JOINTS),
+            out_scale=f64["tau_std"])
 
     def correct(self, windows: np.ndarray, step1: np.ndarray) -> np.ndarray:
         """(B, W, 12) raw windows, (B, 6) step-1 torques -> (B, 6) corrected torques."""

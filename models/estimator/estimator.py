@@ -24,7 +24,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from models.errors import ConfigError, DataError
-from models.estimator.correction import Corr, HistoryWindow, Xfer
+from models.estimator.correction import Corr, CorrKernel, HistoryWindow, Xfer
 from models.estimator.features import segments
 from models.estimator.free_space import FreeSpaceModel
 from models.estimator.wrench import WrenchMap, WrenchMapConfig
@@ -111,17 +111,27 @@ class TwoStepEstimator:
             raise ConfigError(f"correction must be Corr, Xfer or None, got {type(correction)}")
         if isinstance(correction, Xfer) and not correction.uses_base(free_space):
             raise ConfigError("the Xfer model was not built on this free-space model")
-        self.free_space, self.correction = free_space, correction
+        self.free_space, self._correction = free_space, correction
+        self._correction_state: dict[str, np.ndarray] | None = None   # swapped in, not yet a Corr
         self.config = config if config is not None else EstimatorConfig()
         self.wrench_map = wrench_map if wrench_map is not None else WrenchMap(self.config.wrench)
         self.refresh()
 
     @property
+    def correction(self) -> Corr | Xfer | None:
+        """The step-2 model. After :meth:`swap_correction_state` the torch module is built
+        here, on first use (serving needs only the kernel)."""
+        if self._correction_state is not None:
+            self._correction = Corr.from_state(self._correction.config, self._correction_state)
+            self._correction_state = None
+        return self._correction
+
+    @property
     def mode(self) -> str:
         """``"base"``, ``"corr"`` or ``"xfer"``."""
-        if isinstance(self.correction, Corr):
+        if isinstance(self._correction, Corr):
             return "corr"
-        return "xfer" if isinstance(self.correction, Xfer) else "base"
+        return "xfer" if isinstance(self._correction, Xfer) else "base"
 
     def refresh(self) -> None:
         """Rebuild the streaming kernels from the current weights and restart the state."""
@@ -157,7 +167,23 @@ class TwoStepEstimator:
         if correction.window != self.correction.window:
             raise ConfigError(f"window {correction.window} != {self.correction.window}")
         kernel = correction.kernel()
-        self.correction, self._corr = correction, kernel
+        self._correction, self._corr, self._correction_state = correction, kernel, None
+
+    def swap_correction_state(self, state: dict[str, np.ndarray],
+                              kernel: CorrKernel | None = None) -> None:
+        """:meth:`swap_correction` from a ``Corr`` state dict of NumPy arrays (the adaptation
+        worker's output), with its kernel if the sender built it: a reference swap on the
+        thread that estimates, no torch module made (a fresh ``Corr`` runs its random
+        initialisation: ~0.5 ms). :attr:`correction` builds the module when asked for.
+        """
+        if self.mode != "corr":
+            raise ConfigError("swap_correction_state needs a Corr estimator")
+        window = self._correction.window
+        if kernel is None:
+            kernel = CorrKernel.from_state(state, window)
+        elif kernel.window != window:
+            raise ConfigError(f"window {kernel.window} != {window}")
+        self._corr, self._correction_state = kernel, state
 
     def reset_state(self) -> None:
         """Forget the past: the next sample starts a new segment."""

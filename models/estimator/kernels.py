@@ -140,6 +140,24 @@ class MLPKernel:
                 layers[-1][2] = True
             elif not isinstance(m, (nn.Dropout, nn.Identity)):
                 raise ConfigError(f"MLP kernel does not support {type(m).__name__}")
+        self._fold(layers, dtype, in_shift, in_scale, out_shift, out_scale)
+
+    @classmethod
+    def from_arrays(cls, layers: Sequence[tuple[np.ndarray, np.ndarray, bool]], dtype=np.float32,
+                    in_shift: np.ndarray | None = None, in_scale: np.ndarray | None = None,
+                    out_shift: np.ndarray | None = None,
+                    out_scale: np.ndarray | None = None) -> MLPKernel:
+        """The same kernel from ``(weight (out, in), bias (out,), relu after)`` arrays, as
+        ``nn.Linear`` stores them: no torch modules needed (a process that receives trained
+        weights builds its kernel with NumPy alone)."""
+        kernel = cls.__new__(cls)
+        kernel._fold([[np.asarray(w, dtype=np.float64).T, np.asarray(b, dtype=np.float64), relu]
+                      for w, b, relu in layers], dtype, in_shift, in_scale, out_shift, out_scale)
+        return kernel
+
+    def _fold(self, layers: list[list], dtype, in_shift, in_scale, out_shift, out_scale) -> None:
+        """Fold the normalisation into float64 ``[W (in, out), b, relu]`` layers and keep them
+        in ``dtype``."""
         if not layers:
             raise ConfigError("an MLP kernel needs at least one Linear layer")
         if in_scale is not None:

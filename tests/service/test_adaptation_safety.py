@@ -47,7 +47,6 @@ Every case also checks that each model swap carries ``val_before`` and ``val_aft
 
 from __future__ import annotations
 
-import copy
 import dataclasses
 import json
 from pathlib import Path
@@ -56,6 +55,7 @@ import numpy as np
 import pytest
 
 from adapters.sim.scenarios import SCENARIOS, run_scenario
+from models.estimator.correction import Corr
 from models.estimator.estimator import TwoStepEstimator
 from models.estimator.pretrained import load_pretrained
 from models.physics.model import PhysicsModel
@@ -102,12 +102,13 @@ def run(session: Session, seal, cfg: PipelineConfig) -> tuple[ReplayResult, list
 
     def record_swaps(pipeline):
         est = pipeline.estimator
-        swap = est.swap_correction
+        swap = est.swap_correction_state
 
-        def recorded(corr):
-            swaps.append((float(est.t[est.cursor - 1]), copy.deepcopy(corr)))
-            swap(corr)
-        est.swap_correction = recorded
+        def recorded(state, kernel=None):
+            corr = Corr.from_state(est.correction.config, state)
+            swaps.append((float(est.t[est.cursor - 1]), corr))
+            swap(state, kernel)
+        est.swap_correction_state = recorded
 
     result = replay(session, seal, cfg, step1="torch", pipeline_hook=record_swaps)
     return result, swaps

@@ -5,7 +5,7 @@ import pytest
 import torch
 
 from models.errors import ConfigError, DataError
-from models.estimator.correction import Corr, HistoryWindow, Xfer, XferConfig
+from models.estimator.correction import Corr, CorrKernel, HistoryWindow, Xfer, XferConfig
 from models.estimator.features import history_windows
 from models.estimator.free_space import FreeSpaceConfig, FreeSpaceModel
 from models.estimator.kernels import RecurrentStream
@@ -90,3 +90,31 @@ def test_xfer_streaming_equals_sequence(models_f64, free_space_session):
     stream = RecurrentStream(xfer.kernel())
     out = np.array([stream.step(xi) for xi in x])
     np.testing.assert_allclose(out, seq, rtol=0, atol=1e-11)
+
+
+def test_corr_kernel_from_a_state_dict_equals_the_modules_kernel(free_space_session):
+    """The adaptation worker builds the serving kernel from NumPy weights alone; it must be
+    the kernel the torch module gives, to the bit, and the module rebuilt from the same
+    state must predict the same."""
+    torch.manual_seed(3)
+    corr = Corr()
+    x, tau = _features(free_space_session, 40)
+    corr.set_normalisation(x, tau)
+    state = {k: v.detach().numpy().copy() for k, v in corr.state_dict().items()}
+    from_module, from_state = corr.kernel(), CorrKernel.from_state(state, corr.window)
+    assert from_state.dtype == np.float32 and from_state.window == corr.window
+    for (w1, b1, r1), (w2, b2, r2) in zip(from_module.mlp.layers, from_state.mlp.layers):
+        np.testing.assert_array_equal(w1, w2)
+        np.testing.assert_array_equal(b1, b2)
+        assert r1 == r2
+    windows, step1 = history_windows(x, 10), tau
+    np.testing.assert_array_equal(from_module.correct(windows, step1),
+                                  from_state.correct(windows, step1))
+    rebuilt = Corr.from_state(corr.config, state)
+    with torch.no_grad():
+        np.testing.assert_array_equal(
+            rebuilt(torch.as_tensor(windows, dtype=torch.float32),
+                    torch.as_tensor(step1, dtype=torch.float32)).numpy(),
+            corr(torch.as_tensor(windows, dtype=torch.float32),
+                 torch.as_tensor(step1, dtype=torch.float32)).numpy())
+    assert not rebuilt.training

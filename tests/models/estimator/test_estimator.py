@@ -1,5 +1,8 @@
+import copy
+
 import numpy as np
 import pytest
+import torch
 
 from models.errors import ConfigError, DataError
 from models.estimator.correction import Xfer
@@ -101,3 +104,34 @@ def test_shared_step1_kernel_keeps_streams_apart(models_f64, free_space_session)
     np.testing.assert_array_equal(np.array(out), alone["wrench"])
     with pytest.raises(ConfigError):
         TwoStepEstimator(fs, xfer).share_step1(a)
+
+
+def test_swapping_a_state_dict_serves_like_swapping_the_module(models_f64, free_space_session):
+    """The daemon swaps the adaptation worker's weights as NumPy arrays (no torch module on
+    the estimating thread); the estimates must be those of a swapped-in module, and the
+    module, asked for, must be that net."""
+    fs, corr, _ = models_f64
+    other = copy.deepcopy(corr)
+    with torch.no_grad():
+        for p in other.parameters():
+            p.mul_(0.5)
+    state = {k: v.detach().numpy().copy() for k, v in other.state_dict().items()}
+    js = free_space_session.joint_states.slice(0, 60)
+    by_module, by_state = TwoStepEstimator(fs, corr), TwoStepEstimator(fs, corr)
+    outs = []
+    for est, swap in ((by_module, lambda e: e.swap_correction(other)),
+                      (by_state, lambda e: e.swap_correction_state(state))):
+        est.reset_state()
+        rows = []
+        for i, (t, q, dq, e) in enumerate(zip(js.t, js.position, js.velocity, js.effort)):
+            if i == 30:
+                swap(est)                                   # mid-stream: the state carries on
+            rows.append(est.step_one(t, q, dq, e).predicted_torque)
+        outs.append(np.array(rows))
+    np.testing.assert_array_equal(outs[0], outs[1])
+    assert not np.array_equal(outs[0][:30], outs[0][30:60][:30])
+    assert by_state.mode == "corr"
+    for k, v in by_state.correction.state_dict().items():
+        np.testing.assert_array_equal(v.numpy(), state[k])
+    with pytest.raises(ConfigError):
+        TwoStepEstimator(fs).swap_correction_state(state)
