@@ -28,9 +28,7 @@ from __future__ import annotations
 import json
 import math
 import os
-import threading
 import time
-from collections import deque
 from pathlib import Path
 from typing import Any, Callable, IO
 
@@ -41,6 +39,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from adapters.mcap_session import (JOINT_STATE_SCHEMA, SESSION_FORMAT, SESSION_METADATA_NAME,
                                    TOPIC_JOINT_STATES)
+from adapters.messages import encode_joint_state
 
 TOPIC_ESTIMATE = "/wrenchd/estimate"
 TOPIC_EVENTS = "/wrenchd/events"
@@ -256,60 +255,23 @@ class McapLog:
             self.close()
 
 
-Payload = bytes | Callable[[], bytes]
+def _joint_state_json(stamp_ns: int, names, position, velocity, effort, frame_id: str) -> bytes:
+    return encode_joint_state("json", stamp_ns, names, position, velocity, effort, frame_id)
 
 
-class LogWriterThread:
-    """Moves MCAP writing off the threads that estimate.
+#: record makers a payload may name, so that what crosses to the log writer is plain values
+FORMATTERS: dict[str, Callable[..., bytes]] = {
+    "estimate": estimate_record,
+    "joint_state": _joint_state_json,
+}
 
-    Estimation threads :meth:`put` records (the payload may be a function that makes the
-    bytes: formatting then also happens here); one writer thread writes them to their
-    :class:`McapLog`, and flushes and rotates every log it serves (``tick``) every
-    ``interval_s``. The queue is bounded: beyond ``capacity`` records a record is counted in
-    its log's ``lost`` instead of growing memory without limit (a disk slower than the data).
-    :meth:`close` writes what is queued and finishes every log.
-    """
+#: a record: its bytes, or ``(name in FORMATTERS, args)`` to be made by the log writer
+Payload = bytes | tuple[str, tuple]
 
-    def __init__(self, logs: list[McapLog], interval_s: float = 0.02,
-                 capacity: int = 200_000) -> None:
-        self.logs = list(logs)
-        self.interval_s, self.capacity = interval_s, capacity
-        self._queue: deque[tuple[McapLog, str, int, Payload]] = deque()
-        self._stop = threading.Event()
-        self.errors = 0                                      # payload functions that raised
-        self.thread = threading.Thread(target=self._run, name="wrenchd-log", daemon=True)
-        self.thread.start()
 
-    def put(self, log: McapLog, topic: str, stamp_ns: int, payload: Payload) -> None:
-        """Queue one record (cheap: an append)."""
-        if len(self._queue) >= self.capacity:
-            log.lost += 1
-            return
-        self._queue.append((log, topic, stamp_ns, payload))
-
-    def _write_queued(self) -> None:
-        q = self._queue
-        while q:
-            log, topic, stamp_ns, payload = q.popleft()
-            if callable(payload):
-                try:
-                    payload = payload()
-                except Exception:  # noqa: BLE001 - a record that cannot be made is lost
-                    self.errors += 1
-                    log.lost += 1
-                    continue
-            log.write(topic, stamp_ns, payload)
-
-    def _run(self) -> None:
-        while not self._stop.wait(self.interval_s):
-            self._write_queued()
-            for log in self.logs:
-                log.tick()
-        self._write_queued()
-
-    def close(self) -> None:
-        """Write what is queued, stop the thread, finish every log."""
-        self._stop.set()
-        self.thread.join(timeout=30.0)
-        for log in self.logs:
-            log.close()
+def format_record(payload: Payload) -> bytes:
+    """The bytes of a :data:`Payload`."""
+    if isinstance(payload, (bytes, bytearray, memoryview)):
+        return bytes(payload)
+    name, args = payload
+    return FORMATTERS[name](*args)

@@ -8,8 +8,8 @@ One zenoh session per daemon; per arm:
 * the daemon's estimation thread (one for all arms, interleaving them) drains the ring
   through the arm's :class:`ArmPipeline` (decode -> validate -> estimate -> gate), publishes
   the wrench and events, and hands inputs, estimates, events and a status snapshot to the log
-  writer thread, which formats and writes them to the arm's :class:`McapLog` (flushed every
-  second, rotated);
+  writer process (:mod:`service.log_process`), which formats and writes them to the arm's
+  :class:`McapLog` (flushed every second, rotated) outside the daemon's GIL;
 * a queryable ``status`` (JSON: model version, rates, latency percentiles, counters, gate and
   drift state) and a liveliness token ``alive``.
 
@@ -34,17 +34,16 @@ import sys
 import threading
 import time
 from collections import deque
-from functools import partial
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import orjson
 
-from adapters.mcap_log import (TOPIC_ESTIMATE, TOPIC_EVENTS, TOPIC_STATUS, LogWriterThread,
-                               McapLog, estimate_record)
+from adapters.mcap_log import (TOPIC_ESTIMATE, TOPIC_EVENTS, TOPIC_STATUS, McapLog,
+                               estimate_record)
 from adapters.mcap_session import TOPIC_JOINT_STATES
-from adapters.messages import (decode_joint_state, encode_joint_state, encode_wrench,
+from adapters.messages import (decode_joint_state, encode_wrench,
                                prepare_encoding)
 from adapters.zenoh_io import open_session
 from models.errors import ConfigError, DataError
@@ -53,6 +52,7 @@ from models.series import JOINT_NAMES
 from service.config import ArmConfig, ServiceSettings
 from service.adaptation import normalisation_of
 from service.pipeline import ArmPipeline, Estimate, Event
+from service.log_process import LogWriterProcess
 from service.threads import enter_realtime, normal_scheduling, realtime, realtime_below
 from service.worker import ProcessAdaptation, WorkerProcess
 
@@ -117,11 +117,17 @@ def _percentiles(values) -> dict[str, float | None]:
             "max": float(a.max())}
 
 
+def estimate_payload(est: Estimate, frame_id: str = "psm_base") -> tuple[str, tuple]:
+    """The ``/wrenchd/estimate`` log record of one estimate, as plain values for the log
+    writer (:func:`adapters.mcap_log.format_record` makes the bytes)."""
+    return ("estimate", (est.stamp_ns, frame_id, est.wrench.tolist(), bool(est.free),
+                         float(est.score), int(est.model_version), bool(est.restarted),
+                         est.predicted_torque.tolist(), est.external_torque.tolist()))
+
+
 def estimate_bytes(est: Estimate, frame_id: str = "psm_base") -> bytes:
     """The ``/wrenchd/estimate`` log record of one estimate."""
-    return estimate_record(est.stamp_ns, frame_id, est.wrench, est.free, est.score,
-                           est.model_version, est.restarted, est.predicted_torque,
-                           est.external_torque)
+    return estimate_record(*estimate_payload(est, frame_id)[1])
 
 
 class Console:
@@ -177,7 +183,7 @@ class ArmRuntime:
         self.log = McapLog(cfg.name, settings.log, metadata={
             "arm": cfg.name, "settings": settings.model_dump(mode="json"),
             "keys": self.keys})
-        self.log_writer: LogWriterThread | None = None     # set by the daemon before start()
+        self.log_writer: LogWriterProcess | None = None    # set by the daemon before start()
         self.console: Console | None = None                 # likewise
         self.realtime_priority: int | None = None           # likewise: the sample path's
         self.zenoh_links: dict[str, int] = {"routers": 0, "peers": 0, "link_losses": 0}
@@ -235,7 +241,7 @@ class ArmRuntime:
             self._log(TOPIC_EVENTS, max(int(ev.t * 1e9), 0), payload)
 
     def _log(self, topic: str, stamp_ns: int, payload) -> None:
-        """Hand a record (bytes, or a function making them) to the log writer thread."""
+        """Hand a record (bytes, or a formatter's name and arguments) to the log writer."""
         self.log_writer.put(self.log, topic, stamp_ns, payload)
 
     def _decode(self, payload: bytes):
@@ -303,11 +309,11 @@ class ArmRuntime:
                 record = payload
             else:
                 names = msg.name if len(msg.name) == len(JOINT_NAMES) else JOINT_NAMES
-                record = partial(encode_joint_state, "json", est.stamp_ns, names, msg.position,
-                                 msg.velocity, msg.effort, msg.frame_id)
+                record = ("joint_state", (est.stamp_ns, list(names), msg.position.tolist(),
+                                          msg.velocity.tolist(), msg.effort.tolist(),
+                                          msg.frame_id))
             self._log(TOPIC_JOINT_STATES, est.stamp_ns, record)
-            self._log(TOPIC_ESTIMATE, est.stamp_ns, partial(estimate_bytes, est,
-                                                            self.cfg.frame_id))
+            self._log(TOPIC_ESTIMATE, est.stamp_ns, estimate_payload(est, self.cfg.frame_id))
         if events:
             self._publish_events(events)
 
@@ -385,7 +391,7 @@ class Daemon:
         self.worker: WorkerProcess | None = None
         self.arms: list[ArmRuntime] = []
         self.robots: list[subprocess.Popen] = []
-        self.log_writer: LogWriterThread | None = None
+        self.log_writer: LogWriterProcess | None = None
         self.console: Console | None = None
         self.realtime_priority: int | None = None
         self._links: tuple[int, int] | None = None       # (routers, peers) last counted
@@ -438,7 +444,7 @@ class Daemon:
                 arm.pipeline.estimator.share_step1(first[model].pipeline.estimator)
             else:
                 first[model] = arm
-        self.log_writer = LogWriterThread([arm.log for arm in self.arms])
+        self.log_writer = LogWriterProcess([arm.log for arm in self.arms], cpus=s.cpus.worker)
         self.console = Console()
         for arm in self.arms:
             arm.log_writer = self.log_writer

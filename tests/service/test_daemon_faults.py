@@ -41,7 +41,10 @@ def serving(config, endpoint: str, arms: int):
     assert daemon.returncode == 0, err
 
 
-def test_kill_9_loses_at_most_about_a_second_of_log(tmp_path):
+def test_kill_9_of_the_daemon_still_finishes_its_log(tmp_path):
+    """The log writer is a process of its own: when the daemon dies without a word, it
+    writes what it was handed and finishes the file. (A writer killed too loses at most the
+    flush interval: tests/adapters/test_mcap_log.py.)"""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     config = write_config(tmp_path / "wrenchd.toml", endpoint, "json", tmp_path / "logs")
     daemon = subprocess.Popen([sys.executable, "-m", "service.cli", "serve", "--config",
@@ -78,11 +81,11 @@ def test_kill_9_loses_at_most_about_a_second_of_log(tmp_path):
     assert daemon.returncode == -signal.SIGKILL
     logs = sorted((tmp_path / "logs").glob("PSM2-*.mcap"))
     assert len(logs) == 1
+    wait_for(lambda: not read_session_report(logs[0])[1].truncated, 20.0, "a finished log")
     recovered, info = read_session_report(logs[0])
-    assert info.truncated                                # killed: no summary, no footer
     n = len(recovered.joint_states)
-    # flushed every second: at most ~1 s (200 samples) plus what was queued is lost
-    assert len(js) - 300 <= n <= len(js)
+    # what the daemon had not handed over yet (one 20 ms batch) is lost, nothing else
+    assert len(js) - 20 <= n <= len(js)
     np.testing.assert_allclose(recovered.joint_states.effort, js.effort[:n], rtol=1e-9)
 
 
