@@ -80,3 +80,12 @@ def test_bench_inference_writes_its_json(tmp_path):
     assert {"step_p50_us", "step_p99_us", "batch_samples_per_s"} <= set(result)
     assert 0 < result["step_p50_us"] <= result["step_p99_us"]
     assert result["batch_samples_per_s"] > 0 and result["samples"] == 600
+
+
+def test_bench_arm_times_the_daemons_work_and_the_log_writers_apart(tmp_path):
+    out = tmp_path / "arm.json"
+    wrenchd("bench", "arm", "--duration", "2", "--json", str(out))
+    result = json.loads(out.read_text())
+    for stage in ("decode", "pipeline", "encode", "log", "total", "log_writer"):
+        assert 0 < result[f"{stage}_p50_us"] <= result[f"{stage}_p99_us"], stage
+    assert result["samples"] == 400
