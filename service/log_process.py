@@ -178,6 +178,8 @@ class LogWriterProcess:
     def put(self, log: McapLog, topic: str, stamp_ns: int, payload: Payload) -> None:
         """Queue one record (cheap: an append). ``payload``: bytes, or ``(formatter name,
         args)`` made into bytes by the writer (:func:`adapters.mcap_log.format_record`)."""
+        if not log.config.enabled:
+            return
         i = self._index[id(log)]
         if len(self._queue) >= self.capacity:
             self._local_lost[i] += 1
