@@ -111,8 +111,9 @@ class CalibrationGuardConfig(BaseModel):
         default="warn",
         description="warn: every calibration sample trains as before, the guard only counts "
                     "and warns; refuse: what the guard calls contact does not train (no "
-                    "contact trained on trocar-contact, but a calibration ~0.1 N worse on "
-                    "contact-free ones: see the README)")
+                    "contact trained on trocar-contact, but a calibration 0.02-0.25 N worse on "
+                    "contact-free ones: see the README); refuse also publishes the guard's "
+                    "free flag during the calibration (warn: all free, as before)")
     residual_scale: tuple[float, ...] | None = Field(
         default=None,
         description="free-motion RMS of the step-1 residual per joint [N m; N on insertion]; "
@@ -121,7 +122,7 @@ class CalibrationGuardConfig(BaseModel):
         default=2.0, gt=0.0,
         description="the guard starts from this x residual_scale (a set-up adds residual the "
                     "step-1 validation did not have; measured on insufflation-change seeds "
-                    "3-6, contact-free: 1.0 kept 46-60 % of the samples trainable, 2.0 72-85 %)")
+                    "3-6, contact-free: 1.0 called 67-85 % of the samples free, 2.0 80-96 %)")
     borderline_trains: bool = Field(
         default=True,
         description="refuse: a sample the guard calls free but over the gate's train_sigma "
