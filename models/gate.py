@@ -150,6 +150,28 @@ class FreeMotionGate:
         self._contact_t0 = 0.0
         self.contacts = 0
 
+    def seed(self, std: np.ndarray) -> None:
+        """Start from a known free-motion residual scale instead of warming up: a gate that
+        must judge from its first sample (the pipeline's calibration guard), where a warm-up
+        could be spent in a contact and learn it as free motion.
+
+        Args:
+            std: (6,) RMS of the free residual per joint [N m; N on insertion] (floored by
+                ``min_std``); the scale may grow ``max_growth`` times past it.
+        """
+        std = np.asarray(std, dtype=float)
+        if std.shape != (N_JOINTS,) or not np.isfinite(std).all():
+            raise DataError(f"a gate's seed scale needs {N_JOINTS} finite values, got {std!r}")
+        self.reset()
+        c = self.config
+        rms = np.maximum(std, self._floor)
+        for j in range(N_JOINTS):
+            self._warm[j].update(float(rms[j]) ** 2)
+            self._msq[j].update(float(rms[j]) ** 2)
+            self._cap[j] = c.max_growth * float(rms[j])
+        self._seen = c.warmup_samples
+        self._refresh()
+
     @property
     def in_contact(self) -> bool:
         return self._in_contact

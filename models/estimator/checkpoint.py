@@ -124,5 +124,9 @@ def load_checkpoint(path: str | os.PathLike) -> Checkpoint:
     except (KeyError, TypeError, ValueError, RuntimeError, ValidationError) as exc:
         raise ConfigError(f"{where}: invalid checkpoint content: {exc}") from exc
     model.eval()
+    rmse = (payload.get("validation") or {}).get("rmse")
+    if kind == "free_space" and rmse is not None:
+        # the free-motion residual scale of step 1, for the pipeline's calibration guard
+        model.validation_rmse = tuple(float(v) for v in rmse)
     return Checkpoint(kind, model, train, dict(payload.get("data") or {}),
                       dict(payload.get("validation") or {}), VERSION)
