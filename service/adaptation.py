@@ -18,6 +18,23 @@ process, :mod:`service.worker`) and by replay (inline, in simulated time):
   "recent" means). The reservoir is kept (measured: emptying it, and re-learning the gate's
   scale, made the insufflation recovery worse and let more contact through).
 
+Output-layer refit (``refit_shrink`` > 0). A round's few dozen Adam steps on mixed batches
+move the net only part of the way towards a new regime (an insufflation pressure step shifts
+the joint torques at once). After them, the net's output layer (hidden -> 6 and its bias) is
+re-solved in closed form on the recent ring alone, a ridge regression shrunk towards the
+layer's current weights: ``W = argmin |H W - T|^2 + lam |W - W_cur|^2`` with ``H`` the hidden
+features ``[relu(x W1 + b1), 1]`` of the ring's rows, ``T`` their targets and
+``lam = refit_shrink * trace(H^T H) / (hidden + 1)``. The hidden features, learned over the
+whole history, are kept; only their read-out follows the recent regime, and the shrinkage
+keeps it from over-fitting a ring that covers a small part of the workspace. The candidate is
+still scored on the held-out set, so a refit that does not help is not swapped in. Measured
+on ``insufflation-change`` (220 s, seeds 3-8, adaptation seeds 0-2; ``levels`` of
+``tests/service/test_lifelong.py``): the free-motion error 60 s after the change falls from
+1.22 to 1.13 N on average (before the change 1.15 vs 1.13 N), post / pre from 1.07 to 1.02,
+and the worst case from 1.29 to 1.16, with 0.3 (1.0 gives the same means, worst case 1.21);
+no more contact samples reach training on ``trocar-contact`` and ``instrument-drift``. It
+costs ~3 ms per round (the ring's hidden features and a 65 x 65 solve; 40 Adam steps ~7 ms).
+
 The first net is a fresh ``Corr`` whose output layer is zero: it changes nothing until a round
 has been accepted. Its input and torque normalisation is the step-1 model's (fitted on the
 whole free-space workspace), so a net trained on a few seconds of motion does not see inputs
@@ -68,6 +85,11 @@ class AdaptationConfig(BaseModel):
     window: int = Field(default=10, ge=1, description="Corr history window (paper: 10)")
     max_cpu_fraction: float = Field(default=0.5, gt=0.0, le=1.0,
                                     description="duty cycle of the daemon's worker process")
+    refit_shrink: float = Field(
+        default=0.3, ge=0.0,
+        description="ridge weight of the output-layer refit on the recent ring, towards the "
+                    "current weights, as a multiple of the mean diagonal of the hidden "
+                    "features' Gram matrix [-]; 0 = no refit (module docstring)")
     seed: int = 0
 
 
@@ -413,6 +435,23 @@ class Adapter:
         self._scaling_cache = scaling
         return scaling
 
+    def _refit_output(self, tuner: CorrFineTuner) -> None:
+        """Re-solve ``tuner``'s output layer on the recent ring's rows, in place: the ridge
+        regression towards the current layer of the module docstring, solved in float64."""
+        ring = self.recent
+        if ring.n == 0:
+            return
+        w1, b1, w2, b2 = tuner.params
+        hidden = np.maximum(ring.inp[:ring.n] @ w1 + b1, 0.0).astype(np.float64)
+        feats = np.concatenate([hidden, np.ones((ring.n, 1))], axis=1)      # (n, H + 1)
+        current = np.concatenate([w2, b2[None]], axis=0).astype(np.float64)  # (H + 1, 6)
+        gram = feats.T @ feats
+        lam = self.config.refit_shrink * np.trace(gram) / len(gram)
+        rhs = feats.T @ ring.target[:ring.n].astype(np.float64) + lam * current
+        solved = np.linalg.solve(gram + lam * np.eye(len(gram)), rhs)
+        w2[...] = solved[:-1]
+        b2[...] = solved[-1]
+
     def round(self, t: float) -> RoundResult | None:
         """One fine-tuning round at time ``t`` [s] if due; None otherwise."""
         if not self.due(t):
@@ -440,6 +479,8 @@ class Adapter:
         draws = self._round_draws(c.batch_size, c.round_steps) or [None] * c.round_steps
         for drawn in draws:
             tuner.step(*self._batch(c.batch_size, drawn), with_loss=False)
+        if c.refit_shrink > 0:
+            self._refit_output(tuner)
         self.rounds += 1
         n_train = self.recent.n + self.reservoir.n
         if not n_holdout:

@@ -1,8 +1,11 @@
 """The lifelong adaptation core: validated swaps, versions, determinism, drift."""
 
+import copy
+
 import numpy as np
 import torch
 
+from models.estimator.corr_finetune import CorrFineTuner
 from service.adaptation import AdaptationConfig, Adapter, _lemire_draws
 
 
@@ -117,3 +120,56 @@ def test_a_round_draws_its_batches_as_successive_integers_calls():
     assert _lemire_draws(rng, [(2 ** 31 + 1, 64)]) is None   # ~half of the draws re-draw
     assert rng.bit_generator.state == state
     assert _lemire_draws(rng, [(1, 4)]) is None               # integers draws nothing there
+
+
+def _stepped_adapter(refit_shrink: float) -> Adapter:
+    """An adapter trained on one regime, then offered samples after a step change of the
+    measured torques (a drift): the recent ring holds only the new regime, the reservoir
+    mostly the old one."""
+    cfg = AdaptationConfig(min_train_samples=200, recent_size=500, reservoir_size=1000,
+                           round_steps=20, interval_s=1.0, refit_shrink=0.0)
+    adapter = Adapter(cfg)
+    adapter.add(*samples(2000, seed=5))
+    assert any(r.accepted for r in run_rounds(adapter, 6))
+    w, s, m = samples(700, seed=6, gain=0.5)
+    adapter.on_drift(100.0)
+    adapter.add(w, s, m + np.array([0.3, -0.2, 0.1, 0.0, 0.2, -0.1]))
+    adapter.config = cfg.model_copy(update={"refit_shrink": refit_shrink})
+    return adapter
+
+
+def test_the_refit_moves_only_the_output_layer_towards_a_step_change():
+    """One round after the change: with the refit the candidate's held-out error on the new
+    regime is well below Adam's alone, from the same mini-batches (the refit draws nothing),
+    and the hidden layer is Adam's, to the bit."""
+    off, on = _stepped_adapter(0.0), _stepped_adapter(1.0)
+    r_off, r_on = off.round(100.0), on.round(100.0)
+    assert r_off.val_before == r_on.val_before
+    assert r_on.val_after < 0.8 * r_off.val_after, (r_on.summary(), r_off.summary())
+    assert r_on.accepted
+    assert off._rng.bit_generator.state == on._rng.bit_generator.state
+    if r_off.accepted:
+        first_off, first_on = off.corr.net[0], on.corr.net[0]
+        assert torch.equal(first_off.weight, first_on.weight)
+        assert torch.equal(first_off.bias, first_on.bias)
+        assert not torch.equal(off.corr.net[2].weight, on.corr.net[2].weight)
+
+
+def test_refit_off_is_adam_alone_to_the_bit():
+    """``refit_shrink`` 0: the candidate is exactly the fine-tuner's Adam steps on the round's
+    mini-batches, as before the refit existed; a huge shrink leaves the layer as Adam's."""
+    adapter, huge = _stepped_adapter(0.0), _stepped_adapter(1e9)
+    twin = _stepped_adapter(0.0)
+    assert adapter.round(100.0).accepted and huge.round(100.0).accepted
+    cfg = twin.config
+    scaling = twin._round_scaling()
+    for ring in (twin.recent, twin.reservoir, twin._holdout):
+        ring.normalise(scaling, twin._net_rows)
+    tuner = CorrFineTuner(twin.corr.net, lr=cfg.lr, weight_decay=cfg.weight_decay)
+    for drawn in twin._round_draws(cfg.batch_size, cfg.round_steps):
+        tuner.step(*twin._batch(cfg.batch_size, drawn), with_loss=False)
+    want = copy.deepcopy(twin.corr)
+    tuner.write_to(want.net)
+    for k, v in want.state_dict().items():
+        assert torch.equal(adapter.corr.state_dict()[k], v), k
+        np.testing.assert_allclose(huge.corr.state_dict()[k].numpy(), v.numpy(), atol=1e-6)

@@ -10,8 +10,12 @@ offered samples truly in contact; before the gate's joint score, 131 of 26 183 w
 one 2.8 N grasp the peak score never saw; also 0 on seeds 4, 5 and 6). **The free-motion error
 60 s after the change is back within 10 % of its level before it**: NOT met. Measured with
 ``levels`` below (post / pre; adaptation seeds 0, 1, 2 of ``AdaptationConfig.seed``; 0 is the
-default this test runs): seed 3 1.16, 1.13, 1.13; seed 4 1.24, 1.28, 1.29; seed 5 1.10,
-1.17, 1.18 (seed 6: 0.98). What limits it, measured:
+default this test runs), with the output-layer refit (``refit_shrink`` 0.3, the default):
+seed 3 1.11, 1.16, 1.12; seed 4 1.14, 1.14, 1.12; seed 5 0.97, 1.06, 1.04; seed 6 1.00,
+1.00, 0.99; seeds 3-8: 12 of 18 within 1.10, mean 1.02, mean error after the change 1.13 N.
+Without it (``refit_shrink`` 0): seed 3 1.16, 1.13, 1.13; seed 4 1.24, 1.28, 1.29; seed 5
+1.10, 1.17, 1.18; seed 6 0.98, 0.97, 0.95; seeds 3-8: 10 of 18, mean 1.07, 1.22 N. What
+limits it, measured (before the refit, except the last point):
 
 * not the gate alone: with a perfect gate (truth labels) and no delay line at all, the
   ratio is 1.05 / 1.12 / 1.09 on seeds 3 / 4 / 5 (1.05 / 1.15 / 1.10 with adaptation seed
@@ -33,11 +37,15 @@ default this test runs): seed 3 1.16, 1.13, 1.13; seed 4 1.24, 1.28, 1.29; seed 
   decay: 0.001 gives 1.34 / 1.16 / 1.00 and 1.32 / 0.98 / 1.10 (adaptation seeds 0, 2),
   unstable; none, or decay towards the serving net, make the level before the change
   1.1-1.6 N (default 0.94-1.16 N); averaging the candidates' weights (0.7 kept per round)
-  lowers the ratio by raising that level (1.02 and 1.22 N on seeds 3 and 5).
+  lowers the ratio by raising that level (1.02 and 1.22 N on seeds 3 and 5);
+* with the refit, weighting the ring's rows by age in it (half-weight at 750 rows, with
+  ``refit_shrink`` 1.0) gave no gain: mean 1.03, 11 of 18 within 1.10, worst 1.19.
 
 So this test holds the pipeline to what it reaches: adaptation makes the error after the
 change clearly lower than the frozen net's, the change is real (the frozen error grows),
-and the ratio stays under 1.25 (measured 1.16 on this session).
+and the ratio stays under 1.20 (measured 1.11 on this session; at most 1.16 over seeds 3-8
+and adaptation seeds 0-2 with the refit; the bound was 1.25 before it, when this session
+measured 1.16).
 """
 
 import numpy as np
@@ -82,7 +90,7 @@ def test_gated_adaptation_recovers_from_the_insufflation_change(session):
     assert post < 0.7 * f_post, (post, f_post)             # adaptation pays after the change
     assert pre < 0.7 * f_pre, (pre, f_pre)                 # and before it (calibration)
     assert gated.status["counters"]["swaps"] > 0
-    assert post < 1.25 * pre, (pre, post)                  # issue: 1.10 (not met, see above)
+    assert post < 1.20 * pre, (pre, post)                  # issue: 1.10 (not met, see above)
 
     idx = np.searchsorted(session.joint_states.t, gated.offered_t)
     np.testing.assert_allclose(session.joint_states.t[idx], gated.offered_t, atol=1e-9)
