@@ -151,7 +151,8 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 #: Modules that add their own sub-commands: each has ``register(subparsers)``, which adds a
 #: parser whose ``func(args) -> int`` runs it.
 COMMAND_MODULES: list[str] = ["service.train_cmd", "service.reproduce_cmd", "service.real_data_cmd",
-                              "service.discrepancy_cmd", "service.replay_cmd"]
+                              "service.discrepancy_cmd", "service.replay_cmd",
+                              "service.recovery_cmd"]
 
 
 def build_parser() -> argparse.ArgumentParser:

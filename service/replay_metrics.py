@@ -180,3 +180,28 @@ def metrics_markdown(m: dict[str, Any]) -> str:
                      f"{_f(m.get('estimated_force_mean_N'))} N")
     lines += ["", f"Events: {m['events']}", ""]
     return "\n".join(lines)
+
+
+def recovery_levels(r: ReplayResult, session: Session, change_s: float,
+                    settle_s: float = 60.0, window_s: float = 40.0) -> tuple[float, float]:
+    """Issue 4's recovery measure after a set-up change at ``change_s`` [s]: the free-motion
+    force RMSE [N] over the ``window_s`` before the change (``pre``), and over the
+    ``window_s`` that start once ``settle_s`` of free motion (truth labels) has passed after
+    it (``post``). Needs the session's truth; raises ``ValueError`` when the session ends
+    before the second window can start."""
+    truth = session.truth
+    if truth is None:
+        raise ValueError("recovery levels need a session with its truth (a simulated one)")
+    t = r.t
+    err = np.linalg.norm(r.wrench[:, :3] - truth.external_wrench[r.sample, :3], axis=1)
+    free = ~truth.in_contact[r.sample]
+    rate_hz = 1.0 / float(np.median(np.diff(session.joint_states.t)))
+    pre = free & (t >= change_s - window_s) & (t < change_s)
+    after = np.flatnonzero(free & (t >= change_s))
+    k = int(round(settle_s * rate_hz))
+    if k >= len(after):
+        raise ValueError(f"the session ends before {settle_s:g} s of free motion after "
+                         f"{change_s:g} s")
+    start = t[after[k]]
+    post = free & (t >= start) & (t < start + window_s)
+    return float(np.sqrt(np.mean(err[pre] ** 2))), float(np.sqrt(np.mean(err[post] ** 2)))

@@ -89,3 +89,21 @@ def test_bench_arm_times_the_daemons_work_and_the_log_writers_apart(tmp_path):
     for stage in ("decode", "pipeline", "encode", "log", "total", "log_writer"):
         assert 0 < result[f"{stage}_p50_us"] <= result[f"{stage}_p99_us"], stage
     assert result["samples"] == 400
+
+
+def test_recovery_measures_issue_4_per_seed_and_refuses_bad_settings(tmp_path):
+    out = tmp_path / "recovery.json"
+    run = wrenchd("recovery", "--seeds", "5", "--set", '{"adaptation": {"refit_shrink": 0}}',
+                  "--json", str(out))
+    result = json.loads(out.read_text())
+    (row,) = result["rows"]
+    assert row["seed"] == 5 and row["contact_offered"] == 0 and row["offered"] > 10_000
+    assert 0.5 < row["pre_n"] < 2.0 and row["ratio"] == round(row["post_n"] / row["pre_n"], 4)
+    assert result["summary"][0]["within_target"] == int(row["ratio"] <= 1.10)
+    assert "mean ratio" in run.stdout
+    for args, word in ((["--set", "[1]"], "JSON object"),
+                       (["--set", '{"gate": {"enter_sigma": -1}}'], "enter_sigma"),
+                       (["--duration", "100"], "free motion after")):
+        bad = wrenchd("recovery", "--seeds", "5", *args, check=False)
+        assert bad.returncode == 2, bad.stderr
+        assert word in bad.stderr and "Traceback" not in bad.stderr

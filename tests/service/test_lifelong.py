@@ -55,6 +55,7 @@ from adapters.sim.scenarios import run_scenario
 from models.estimator.pretrained import load_pretrained
 from service.pipeline import PipelineConfig, PolicyConfig
 from service.replay import replay
+from service.replay_metrics import recovery_levels
 
 DURATION, SEED = 220.0, 3
 CHANGE_S = 0.4 * DURATION
@@ -66,16 +67,7 @@ def session():
 
 
 def levels(session, result) -> tuple[float, float]:
-    truth = session.truth
-    t = result.t
-    err = np.linalg.norm(result.wrench[:, :3] - truth.external_wrench[result.sample, :3], axis=1)
-    free = ~truth.in_contact[result.sample]
-    pre = free & (t >= CHANGE_S - 40.0) & (t < CHANGE_S)
-    after = np.flatnonzero(free & (t >= CHANGE_S))
-    t60 = t[after[60 * 200]]                       # 60 s of free motion after the change
-    post = free & (t >= t60) & (t < t60 + 40.0)
-    rms = lambda m: float(np.sqrt(np.mean(err[m] ** 2)))  # noqa: E731
-    return rms(pre), rms(post)
+    return recovery_levels(result, session, CHANGE_S)
 
 
 def test_gated_adaptation_recovers_from_the_insufflation_change(session):
