@@ -40,8 +40,7 @@ from typing import Any
 import numpy as np
 import orjson
 
-from adapters.mcap_log import (TOPIC_ESTIMATE, TOPIC_EVENTS, TOPIC_STATUS, McapLog,
-                               estimate_record)
+from adapters.mcap_log import TOPIC_ESTIMATE, TOPIC_EVENTS, TOPIC_STATUS, McapLog
 from adapters.mcap_session import TOPIC_JOINT_STATES
 from adapters.messages import (decode_joint_state, encode_wrench,
                                prepare_encoding)
@@ -124,10 +123,6 @@ def estimate_payload(est: Estimate, frame_id: str = "psm_base") -> tuple[str, tu
                          float(est.score), int(est.model_version), bool(est.restarted),
                          est.predicted_torque.tolist(), est.external_torque.tolist()))
 
-
-def estimate_bytes(est: Estimate, frame_id: str = "psm_base") -> bytes:
-    """The ``/wrenchd/estimate`` log record of one estimate."""
-    return estimate_record(*estimate_payload(est, frame_id)[1])
 
 
 class Console:

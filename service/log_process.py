@@ -35,7 +35,7 @@ from pathlib import Path
 from typing import Any
 
 from adapters.mcap_log import LogConfig, McapLog, Payload, format_record
-from service.threads import normal_class
+from service.threads import normal_class, normal_scheduling
 
 #: how long close() waits for the writer to finish its files [s]
 CLOSE_TIMEOUT_S = 30.0
@@ -51,7 +51,6 @@ def _writer_main(specs: list[tuple[str, dict[str, Any], dict[str, Any]]], inbox,
     """The writer process: batches in, records formatted and written, states out."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
-    from service.threads import normal_scheduling
     normal_scheduling()                       # never in the daemon's real-time class
     if cpus is not None:
         os.sched_setaffinity(0, cpus)
