@@ -105,7 +105,8 @@ class GateDecision(NamedTuple):
     Attributes:
         free: free motion (published with the estimate).
         score: peak score, largest per-joint |residual| / scale [scale units].
-        contact_started: sample index where the current contact began (-1 when free).
+        contact_started: sample index where the current contact began (-1 when free; at the
+            sample that ends a contact, still that contact's onset).
         recalibrated: the gate re-calibrated at this sample (stuck in contact too long).
         trainable: free and quiet enough to train on.
     """
@@ -261,8 +262,11 @@ class FreeMotionGate:
                 self._below_since = t
             if t - self._below_since >= cfg.exit_s:
                 self._in_contact, self._above, self._joint_above = False, 0, 0
-                self._contact_start = -1
-                return GateDecision(False, score, -1)     # the first free sample is not trusted
+                start, self._contact_start = self._contact_start, -1
+                # the first free sample is not trusted: it is the contact's last, and says
+                # where that contact began (a -1 here read as "onset unknown" made the
+                # pipeline drop its whole delay line at every contact's end)
+                return GateDecision(False, score, start)
         else:
             self._below_since = None
         if t - self._contact_t0 > cfg.max_contact_s:

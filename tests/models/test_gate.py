@@ -49,6 +49,9 @@ def test_a_contact_is_detected_and_not_chopped_by_a_dip():
     starts = [d.contact_started for d in out if d.contact_started >= 0]
     # the index of the first sample of the run above the bound that started the contact
     assert onset - min(starts) + 1 in (cfg.enter_samples, cfg.joint_samples)
+    end = onset + int(np.argmax(free[onset:]))          # the first free sample after it
+    # every sample of the contact, the last (that ends it) included, says where it began
+    assert {d.contact_started for d in out[onset:end]} == {min(starts)}
 
 
 def test_a_weak_contact_on_several_joints_is_caught_by_the_joint_score():

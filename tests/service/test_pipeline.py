@@ -170,3 +170,28 @@ def test_arms_stepped_together_give_what_each_alone_gives(seal):
                 compared += 1
     assert compared == sum(len(s) for s in streams) - 1
     assert [p.counters for p in alone] == [p.counters for p in joint]
+
+
+def test_samples_waiting_from_before_a_contacts_onset_margin_are_offered_after_it(seal):
+    """The delay line at a contact: samples queued within ``onset_margin_s`` of the gate's
+    onset are dropped, older ones wait through the contact and are offered after it (the
+    sample that ends a contact carries its onset; read as "onset unknown", it once dropped the
+    whole line at every contact's end)."""
+    js = run_scenario("trocar", 20.0, 4).joint_states
+    effort = js.effort.copy()
+    push = (js.t >= 12.0) & (js.t < 14.0)
+    effort[push, 2] += 3.0                         # 3 N along the shaft: 30x the gate's floor
+    cfg = PipelineConfig(calibration_s=0.0,
+                         policy=PolicyConfig(release_delay_s=2.5, onset_margin_s=0.5))
+    p = ArmPipeline("PSM1", seal, cfg)
+    offered: list[float] = []
+    p.on_offer = lambda ts: offered.extend(ts.tolist())
+    free = np.array([p.process(msg(js, i, effort=effort[i]))[0].free for i in range(len(js))])
+    onset = js.t[int(np.argmax(~free & (js.t > 10.0)))]
+    assert 12.0 <= onset < 12.2 and not free[push][20:].any()   # found within ~10 samples
+    offered = np.asarray(offered)
+    line = (js.t >= onset - 2.45) & (js.t < onset - 0.55)     # waited past the margin
+    assert np.isin(js.t[line], offered).mean() > 0.5      # (borderline samples never wait)
+    margin = (js.t >= onset - 0.45) & (js.t < 14.0)
+    assert not np.isin(js.t[margin], offered).any()
+    assert p.counters.discarded_onsets < 0.6 * 200          # ~0.5 s at 200 Hz dropped
