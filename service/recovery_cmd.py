@@ -8,9 +8,17 @@ seed the free-motion force RMSE before the change and after 60 s of free motion
 and how many samples offered to training were truly in contact (the issue asks for 0); then
 per setting the mean ratio, how many seeds are within 1.10 and the worst.
 
+With ``--settled`` each seed is also replayed as ``insufflation-high`` (the same motion,
+contacts and noise at 20 mmHg from the start) and the row gives that replay's error over the
+same window after the change (``settled_post_n``) and ``excess`` = post / settled: how far the
+adapted net is from one that learnt the new pressure from the start. Post / pre mixes that
+with how much harder the new set-up is and how much the net keeps improving anyway; excess
+does not.
+
 Example::
 
     wrenchd recovery --seeds 3,4,5 --set '{}' --set '{"adaptation": {"refit_shrink": 0}}'
+    wrenchd recovery --seeds 3,4 --settled
 """
 
 from __future__ import annotations
@@ -23,6 +31,7 @@ from pathlib import Path
 from models.errors import ConfigError
 
 SCENARIO = "insufflation-change"
+SETTLED_SCENARIO = "insufflation-high"     # the same seeds at the new pressure throughout
 CHANGE_FRACTION = 0.4                    # adapters/sim/scenarios.py: the step at 40 %
 TARGET_RATIO = 1.10
 
@@ -46,7 +55,7 @@ def _settings(texts: list[str]):
 
 
 def run_recovery(seeds: list[int], settings: list[str], duration_s: float = 220.0,
-                 model: str = "seal", progress=print) -> dict:
+                 model: str = "seal", progress=print, settled: bool = False) -> dict:
     """The measure for every seed and setting (see the module docstring)."""
     import numpy as np
 
@@ -61,6 +70,8 @@ def run_recovery(seeds: list[int], settings: list[str], duration_s: float = 220.
     free_space = load_free_space(model)
     change_s = CHANGE_FRACTION * duration_s
     sessions = {seed: run_scenario(SCENARIO, duration_s, seed) for seed in seeds}
+    references = ({seed: run_scenario(SETTLED_SCENARIO, duration_s, seed) for seed in seeds}
+                  if settled else {})
     rows = []
     for text, config in configs:
         for seed, session in sessions.items():
@@ -76,10 +87,19 @@ def run_recovery(seeds: list[int], settings: list[str], duration_s: float = 220.
                    "contact_offered": int(session.truth.in_contact[idx].sum()),
                    "offered": int(len(idx)), "drifts": r.status["counters"]["drifts"],
                    "seconds": round(time.perf_counter() - t0, 1)}
+            line = (f"{text} seed {seed}: pre {pre:.3f} N, post {post:.3f} N, ratio "
+                    f"{post / pre:.3f}, contact samples offered {row['contact_offered']} of "
+                    f"{row['offered']}")
+            if settled:
+                reference = references[seed]
+                _, post_ref = recovery_levels(replay(reference, free_space, config,
+                                                     step1="torch"), reference, change_s)
+                row.update(settled_post_n=round(post_ref, 4),
+                           excess=round(post / post_ref, 4),
+                           seconds=round(time.perf_counter() - t0, 1))
+                line += f"; settled {post_ref:.3f} N, excess {post / post_ref:.3f}"
             rows.append(row)
-            progress(f"{text} seed {seed}: pre {pre:.3f} N, post {post:.3f} N, ratio "
-                     f"{post / pre:.3f}, contact samples offered {row['contact_offered']} of "
-                     f"{row['offered']}")
+            progress(line)
     summary = []
     for text, _ in configs:
         ratios = [r["ratio"] for r in rows if r["set"] == text]
@@ -88,6 +108,10 @@ def run_recovery(seeds: list[int], settings: list[str], duration_s: float = 220.
                         "seeds": len(ratios), "worst_ratio": max(ratios),
                         "contact_offered": sum(r["contact_offered"] for r in rows
                                                if r["set"] == text)})
+        if settled:
+            excess = [r["excess"] for r in rows if r["set"] == text]
+            summary[-1].update(mean_excess=round(float(np.mean(excess)), 4),
+                               worst_excess=max(excess))
     return {"scenario": SCENARIO, "duration_s": duration_s, "change_s": change_s,
             "target_ratio": TARGET_RATIO, "rows": rows, "summary": summary}
 
@@ -99,11 +123,15 @@ def _cmd(args: argparse.Namespace) -> int:
         raise ConfigError(f"--seeds must be comma-separated integers, got {args.seeds!r}")
     if not seeds:
         raise ConfigError("--seeds names no seed")
-    result = run_recovery(seeds, args.set, args.duration, args.model)
+    result = run_recovery(seeds, args.set, args.duration, args.model, settled=args.settled)
     for s in result["summary"]:
-        print(f"{s['set']}: mean ratio {s['mean_ratio']:.3f}, {s['within_target']} of "
-              f"{s['seeds']} seeds within {TARGET_RATIO}, worst {s['worst_ratio']:.3f}, "
-              f"contact samples offered {s['contact_offered']}")
+        line = (f"{s['set']}: mean ratio {s['mean_ratio']:.3f}, {s['within_target']} of "
+                f"{s['seeds']} seeds within {TARGET_RATIO}, worst {s['worst_ratio']:.3f}, "
+                f"contact samples offered {s['contact_offered']}")
+        if args.settled:
+            line += f"; excess over settled: mean {s['mean_excess']:.3f}, worst " \
+                    f"{s['worst_excess']:.3f}"
+        print(line)
     if args.json:
         Path(args.json).write_text(json.dumps(result, indent=2) + "\n")
     return 0
@@ -117,5 +145,8 @@ def register(sub) -> None:
                    help="JSON PipelineConfig overrides (repeatable; none: the defaults)")
     p.add_argument("--duration", type=float, default=220.0, help="session length [s]")
     p.add_argument("--model", default="seal", help="step-1 model (shipped name or checkpoint)")
+    p.add_argument("--settled", action="store_true",
+                   help="also replay each seed at the new pressure from the start and report "
+                        "post / that level (excess; module docstring)")
     p.add_argument("--json", help="also write the rows and summary to this file")
     p.set_defaults(func=_cmd)

@@ -12,6 +12,10 @@
                        the session, plus occasional contacts (sensor recorded).
 ``instrument-drift``   ``trocar`` with seal friction ramping up 60 % and wrist friction up
                        80 % over the session (wear), plus occasional contacts.
+``insufflation-high``  ``insufflation-change`` at 20 mmHg from the start: with the same seed,
+                       the same motion, contacts and noise, so the level a net reaches that
+                       learnt the new pressure from the start (``wrenchd recovery
+                       --settled``'s reference).
 =====================  ===================================================================
 
 Everything random (trajectory, contact times, noise) comes from one seed, so a scenario is
@@ -88,6 +92,12 @@ def _insufflation(duration: float) -> list[dict[str, Any]]:
     }]
 
 
+def _insufflated_high(duration: float) -> list[dict[str, Any]]:
+    effects = _insufflation(duration)
+    effects[-1]["params"]["t_start_s"] = 0.0      # the same step, from the first sample on
+    return effects
+
+
 def _wear(duration: float) -> list[dict[str, Any]]:
     start, end = round(0.1 * duration, 3), round(0.9 * duration, 3)
     return _trocar(duration) + [
@@ -112,6 +122,9 @@ SCENARIOS: dict[str, Scenario] = {s.name: s for s in (
              force_sensor=True),
     Scenario("insufflation-change", "trocar; pressure steps 12 -> 20 mmHg at 40 %",
              TROCAR_WORKSPACE, _insufflation, freq_hz=(0.02, 0.2), contact_every_s=20.0,
+             force_sensor=True, contact_free_s=60.0),
+    Scenario("insufflation-high", "insufflation-change at 20 mmHg from the start",
+             TROCAR_WORKSPACE, _insufflated_high, freq_hz=(0.02, 0.2), contact_every_s=20.0,
              force_sensor=True, contact_free_s=60.0),
     Scenario("instrument-drift", "trocar; seal +60 % and wrist +80 % friction (wear)",
              TROCAR_WORKSPACE, _wear, freq_hz=(0.02, 0.2), contact_every_s=20.0,

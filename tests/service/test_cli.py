@@ -94,13 +94,17 @@ def test_bench_arm_times_the_daemons_work_and_the_log_writers_apart(tmp_path):
 def test_recovery_measures_issue_4_per_seed_and_refuses_bad_settings(tmp_path):
     out = tmp_path / "recovery.json"
     run = wrenchd("recovery", "--seeds", "5", "--set", '{"adaptation": {"refit_shrink": 0}}',
-                  "--json", str(out))
+                  "--settled", "--json", str(out))
     result = json.loads(out.read_text())
     (row,) = result["rows"]
     assert row["seed"] == 5 and row["contact_offered"] == 0 and row["offered"] > 10_000
     assert 0.5 < row["pre_n"] < 2.0 and row["ratio"] == round(row["post_n"] / row["pre_n"], 4)
     assert result["summary"][0]["within_target"] == int(row["ratio"] <= 1.10)
     assert "mean ratio" in run.stdout
+    # the same seed at 20 mmHg throughout: a level of its own, the excess over it
+    assert 0.5 < row["settled_post_n"] < 2.0 and row["settled_post_n"] != row["post_n"]
+    assert row["excess"] == pytest.approx(row["post_n"] / row["settled_post_n"], abs=2e-4)
+    assert "excess over settled" in run.stdout
     for args, word in ((["--set", "[1]"], "JSON object"),
                        (["--set", '{"gate": {"enter_sigma": -1}}'], "enter_sigma"),
                        (["--duration", "100"], "free motion after")):

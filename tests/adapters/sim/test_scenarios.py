@@ -47,6 +47,23 @@ def test_effect_sets_match_the_scenario(sessions):
     assert {"seal_wear", "wrist_wear"} <= has["instrument-drift"]
 
 
+def test_insufflation_high_is_the_change_session_at_the_new_pressure_throughout():
+    """Same seed: the same motion, contacts and noise; the body wall's torque as the change
+    session's after its step, before it as well (the reference of ``wrenchd recovery``)."""
+    change = run_scenario("insufflation-change", 80.0, seed=5)
+    high = run_scenario("insufflation-high", 80.0, seed=5)
+    np.testing.assert_array_equal(change.joint_states.position, high.joint_states.position)
+    assert change.truth.in_contact.any()                       # contacts after 60 s
+    np.testing.assert_array_equal(change.truth.in_contact, high.truth.in_contact)
+    step = change.joint_states.t >= 32.0                       # the step at 40 % of 80 s
+
+    def wall(s):
+        return s.truth.effects["body_wall"] + s.truth.effects["insufflation_step"]
+    np.testing.assert_allclose(wall(change)[step], wall(high)[step], atol=1e-9)
+    ratio = np.abs(wall(high)[~step, :2]).sum() / np.abs(wall(change)[~step, :2]).sum()
+    assert ratio == pytest.approx((100 + 40 * 20) / (100 + 40 * 12), rel=0.05)  # k(p), N/m
+
+
 def test_contacts_only_where_expected(sessions):
     for name in ("free-space", "free-space-seal", "trocar"):
         assert not sessions[name].truth.in_contact.any(), name
