@@ -98,6 +98,7 @@ def test_recovery_measures_issue_4_per_seed_and_refuses_bad_settings(tmp_path):
     result = json.loads(out.read_text())
     (row,) = result["rows"]
     assert row["seed"] == 5 and row["contact_offered"] == 0 and row["offered"] > 10_000
+    assert 0.05 < row["free_offered_after"] < 1.0
     assert 0.5 < row["pre_n"] < 2.0 and row["ratio"] == round(row["post_n"] / row["pre_n"], 4)
     assert result["summary"][0]["within_target"] == int(row["ratio"] <= 1.10)
     assert "mean ratio" in run.stdout
