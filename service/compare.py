@@ -57,7 +57,8 @@ def table_markdown(rows: list[dict[str, Any]]) -> str:
             _cell(_get(m, "sensor", "force_rmse_N", "contact")),
             _cell(_get(m, "false_force_N", "mean")), _cell(_get(m, "gate", "precision")),
             _cell(_get(m, "gate", "recall")),
-            f"{c.get('in_contact', 'n/a')}/{c.get('offered', 'n/a')}",
+            f"{c.get('in_contact', 'n/a')}/{c.get('offered', 'n/a')} "
+            f"({c.get('in_contact_after_calibration', 'n/a')} after calibration)",
             str(m["final_model_version"])]) + " |")
     return "\n".join(out) + "\n"
 

@@ -9,7 +9,8 @@ norm), torques ``|T_est - T_ref|`` [N m]. References: the simulator's true tip w
   in free motion (the true wrench is then zero).
 * gate ``precision`` / ``recall`` of "contact" against the true ``in_contact``, after the
   pipeline's calibration period (when the gate is not used).
-* ``contamination``: offered training samples that were truly in contact.
+* ``contamination``: offered training samples that were truly in contact (all, and those
+  offered after the calibration, which trains on every sample by design).
 * drift: for each set-up change the session announces (a step, or a ramp's start), the free-
   motion force error before (30 s) and after it, and the time until the 5 s rolling free-
   motion error is back within 10 % of the pre-change level (None: never).
@@ -128,11 +129,16 @@ def replay_metrics(r: ReplayResult, session: Session) -> dict[str, Any]:
     if len(r.offered_t):
         pos = np.clip(np.searchsorted(session.joint_states.t, r.offered_t), 0,
                       len(truth) - 1)
-        bad = int(truth.in_contact[pos].sum())
+        bad_mask = truth.in_contact[pos]
+        bad = int(bad_mask.sum())
         m["contamination"] = {"offered": int(len(r.offered_t)), "in_contact": bad,
-                              "fraction": bad / len(r.offered_t)}
+                              "fraction": bad / len(r.offered_t),
+                              # the calibration minute trains on every sample by design
+                              "in_contact_after_calibration": int(
+                                  bad_mask[r.offered_t >= t0 + calib].sum())}
     else:
-        m["contamination"] = {"offered": 0, "in_contact": 0, "fraction": None}
+        m["contamination"] = {"offered": 0, "in_contact": 0, "fraction": None,
+                              "in_contact_after_calibration": 0}
     ef = np.linalg.norm(r.wrench[:, :3] - truth.external_wrench[r.sample, :3], axis=1)
     m["drifts"] = [{"id": name, "end_s": end, **_recovery(r.t, ef, ~contact, start)}
                    for name, start, end in drift_onsets(session)]
@@ -169,7 +175,8 @@ def metrics_markdown(m: dict[str, Any]) -> str:
                   f"- gate (after {g['after_s']:.0f} s): precision {_f(g['precision'])}, "
                   f"recall {_f(g['recall'])}",
                   f"- training contamination: {c['in_contact']} of {c['offered']} offered "
-                  f"samples were in contact ({_f(c['fraction'])})"]
+                  f"samples were in contact ({_f(c['fraction'])}), "
+                  f"{c['in_contact_after_calibration']} of them after the calibration"]
         for d in m["drifts"]:
             lines.append(f"- drift `{d['id']}` at {d['onset_s']:.0f} s: free-motion force error "
                          f"{_f(d['free_force_error_before_N'])} N before, "

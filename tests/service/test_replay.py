@@ -125,6 +125,9 @@ def test_metrics_on_simulated_contact_session(fs, contact_session):
     # ungated offers every sample with a window: contact samples are among them
     assert mu["contamination"]["offered"] == len(contact_session.joint_states)
     assert mu["contamination"]["in_contact"] == int(truth.in_contact.sum())
+    after = contact_session.joint_states.t >= mu["gate"]["after_s"]
+    assert mu["contamination"]["in_contact_after_calibration"] == int(
+        truth.in_contact[after].sum())
 
 
 def test_drift_recovery_metric_on_insufflation(fs):
