@@ -6,7 +6,8 @@ for each seed, replays it through the daemon's pipeline once per ``--set`` (a JS
 seed the free-motion force RMSE before the change and after 60 s of free motion
 (:func:`service.replay_metrics.recovery_levels`), their ratio (the issue asks for <= 1.10),
 how many samples offered to training were truly in contact (the issue asks for 0) and what
-share of the truly free motion in the minute after the change was offered; then per setting the mean ratio, how many seeds are within 1.10 and the worst.
+share of the truly free motion in the minute after the change was offered; then per setting
+the mean ratio, how many seeds are within 1.10 and the worst.
 
 With ``--settled`` each seed is also replayed as ``insufflation-high`` (the same motion,
 contacts and noise at 20 mmHg from the start) and the row gives that replay's error over the
@@ -81,8 +82,8 @@ def run_recovery(seeds: list[int], settings: list[str], duration_s: float = 220.
                 pre, post = recovery_levels(r, session, change_s)
             except ValueError as exc:
                 raise ConfigError(f"--duration {duration_s:g}: {exc}") from exc
-            idx = np.searchsorted(session.joint_states.t, r.offered_t)
             t = session.joint_states.t
+            idx = np.searchsorted(t, r.offered_t)
             after = ~session.truth.in_contact & (t >= change_s) & (t < change_s + 60.0)
             offered = np.zeros(len(t), bool)
             offered[idx] = True
