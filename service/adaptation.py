@@ -202,10 +202,6 @@ def zero_corr(config: CorrConfig, windows: np.ndarray, step1: np.ndarray, seed: 
     return corr.eval()
 
 
-def state_to_numpy(corr: Corr) -> dict[str, np.ndarray]:
-    return {k: v.detach().cpu().numpy().copy() for k, v in corr.state_dict().items()}
-
-
 def _lemire_draws(rng: np.random.Generator, calls: list[tuple[int, int]]) -> np.ndarray | None:
     """The concatenated results of ``rng.integers(0, n, count)`` for ``(n, count)`` in
     ``calls``, in one vectorised pass, leaving ``rng`` as those calls would; None (and ``rng``
@@ -495,6 +491,6 @@ class Adapter:
             self.corr = candidate.eval()
             self.version += 1
             self.accepted += 1
-        state = state_to_numpy(candidate) if accepted else None
+        state = candidate.state_arrays() if accepted else None
         return RoundResult(t, accepted, self.version, before, after, n_train, n_holdout, eager,
                            state, CorrKernel.from_state(state, self.corr.window) if accepted else None)

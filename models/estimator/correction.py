@@ -67,6 +67,11 @@ class Corr(nn.Module):
         corr.load_state_dict({k: torch.from_numpy(np.array(v)) for k, v in state.items()})
         return corr.eval()
 
+    def state_arrays(self) -> dict[str, np.ndarray]:
+        """The ``state_dict`` as NumPy copies (what :meth:`from_state` and
+        :meth:`CorrKernel.from_state` take; safe to ship to another process)."""
+        return {k: v.detach().cpu().numpy().copy() for k, v in self.state_dict().items()}
+
     def set_normalisation(self, features: np.ndarray, step1_torques: np.ndarray) -> None:
         """Store mean/std of (N, 12) training features and (N, 6) step-1 torques."""
         f = np.asarray(features, dtype=np.float64).reshape(-1, N_FEATURES)
@@ -112,8 +117,7 @@ class CorrKernel:
     """Eval-mode :class:`Corr` on NumPy, normalisation folded into the weights."""
 
     def __init__(self, corr: Corr, dtype: np.dtype) -> None:
-        state = {k: v.detach().cpu().numpy() for k, v in corr.state_dict().items()}
-        self._build(state, corr.window, dtype)
+        self._build(corr.state_arrays(), corr.window, dtype)
 
     @classmethod
     def from_state(cls, state: dict[str, np.ndarray], window: int,
