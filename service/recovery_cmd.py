@@ -16,10 +16,15 @@ adapted net is from one that learnt the new pressure from the start. Post / pre 
 with how much harder the new set-up is and how much the net keeps improving anyway; excess
 does not.
 
+With ``--bins SECONDS`` each row also gives the free-motion error per bin from the change to
+the end (``post_bins_n``; with ``--settled`` the settled replay's, ``settled_bins_n``, and
+their ratio, ``excess_bins``): how the gap evolves, where the post window is one point of it.
+
 Example::
 
     wrenchd recovery --seeds 3,4,5 --set '{}' --set '{"adaptation": {"refit_shrink": 0}}'
     wrenchd recovery --seeds 3,4 --settled
+    wrenchd recovery --seeds 3,4 --settled --bins 20 --duration 600
 """
 
 from __future__ import annotations
@@ -55,18 +60,26 @@ def _settings(texts: list[str]):
     return out
 
 
+def _rounded(values) -> list[float | None]:
+    """JSON-ready: 4 decimals, None for NaN (an empty bin)."""
+    return [None if v != v else round(float(v), 4) for v in values]
+
+
 def run_recovery(seeds: list[int], settings: list[str], duration_s: float = 220.0,
-                 model: str = "seal", progress=print, settled: bool = False) -> dict:
+                 model: str = "seal", progress=print, settled: bool = False,
+                 bin_s: float | None = None) -> dict:
     """The measure for every seed and setting (see the module docstring)."""
     import numpy as np
 
     from adapters.sim.scenarios import run_scenario
     from service.daemon import load_free_space
     from service.replay import replay
-    from service.replay_metrics import recovery_levels
+    from service.replay_metrics import binned_free_error, recovery_levels
     from service.threads import one_compute_thread
 
     one_compute_thread()
+    if bin_s is not None and not 0 < bin_s < float("inf"):
+        raise ConfigError(f"--bins must be a positive number of seconds, got {bin_s:g}")
     configs = _settings(settings)
     free_space = load_free_space(model)
     change_s = CHANGE_FRACTION * duration_s
@@ -100,16 +113,32 @@ def run_recovery(seeds: list[int], settings: list[str], duration_s: float = 220.
                     f"{post / pre:.3f}, contact samples offered {row['contact_offered']} of "
                     f"{row['offered']}, free motion offered in the minute after the change "
                     f"{row['free_offered_after']:.0%}")
+            if bin_s is not None:
+                starts, post_bins, _ = binned_free_error(r, session, change_s, bin_s)
+                row.update(bins_start_s=_rounded(starts), post_bins_n=_rounded(post_bins))
             if settled:
                 reference = references[seed]
-                _, post_ref = recovery_levels(replay(reference, free_space, config,
-                                                     step1="torch"), reference, change_s)
+                r_ref = replay(reference, free_space, config, step1="torch")
+                _, post_ref = recovery_levels(r_ref, reference, change_s)
                 row.update(settled_post_n=round(post_ref, 4),
                            excess=round(post / post_ref, 4),
                            seconds=round(time.perf_counter() - t0, 1))
                 line += f"; settled {post_ref:.3f} N, excess {post / post_ref:.3f}"
+                if bin_s is not None:
+                    _, ref_bins, _ = binned_free_error(r_ref, reference, change_s, bin_s)
+                    n = min(len(post_bins), len(ref_bins))
+                    with np.errstate(invalid="ignore"):
+                        excess_bins = post_bins[:n] / ref_bins[:n]
+                    row.update(settled_bins_n=_rounded(ref_bins),
+                               excess_bins=_rounded(excess_bins))
             rows.append(row)
             progress(line)
+            if bin_s is not None:
+                shown = row.get("excess_bins", row["post_bins_n"])
+                what = "excess over settled" if settled else "free-motion error [N]"
+                progress(f"{text} seed {seed}: {what} per {bin_s:g} s bin from "
+                         f"{change_s:g} s: " + " ".join("-" if v is None else f"{v:.2f}"
+                                                       for v in shown))
     summary = []
     for text, _ in configs:
         ratios = [r["ratio"] for r in rows if r["set"] == text]
@@ -133,7 +162,8 @@ def _cmd(args: argparse.Namespace) -> int:
         raise ConfigError(f"--seeds must be comma-separated integers, got {args.seeds!r}")
     if not seeds:
         raise ConfigError("--seeds names no seed")
-    result = run_recovery(seeds, args.set, args.duration, args.model, settled=args.settled)
+    result = run_recovery(seeds, args.set, args.duration, args.model, settled=args.settled,
+                          bin_s=args.bins)
     for s in result["summary"]:
         line = (f"{s['set']}: mean ratio {s['mean_ratio']:.3f}, {s['within_target']} of "
                 f"{s['seeds']} seeds within {TARGET_RATIO}, worst {s['worst_ratio']:.3f}, "
@@ -158,5 +188,8 @@ def register(sub) -> None:
     p.add_argument("--settled", action="store_true",
                    help="also replay each seed at the new pressure from the start and report "
                         "post / that level (excess; module docstring)")
+    p.add_argument("--bins", type=float, metavar="SECONDS",
+                   help="also give the free-motion error per bin of this length from the "
+                        "change to the end (with --settled: over the settled replay's)")
     p.add_argument("--json", help="also write the rows and summary to this file")
     p.set_defaults(func=_cmd)

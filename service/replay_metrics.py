@@ -212,3 +212,27 @@ def recovery_levels(r: ReplayResult, session: Session, change_s: float,
     start = t[after[k]]
     post = free & (t >= start) & (t < start + window_s)
     return float(np.sqrt(np.mean(err[pre] ** 2))), float(np.sqrt(np.mean(err[post] ** 2)))
+
+
+def binned_free_error(r: ReplayResult, session: Session, start_s: float,
+                      bin_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Free-motion force RMSE [N] per ``bin_s`` bin from ``start_s`` to the session's end:
+    the bins' start times [s], their RMSE (NaN where a bin has no free sample) and their
+    free-sample counts. How the error evolves after a change, where :func:`recovery_levels`
+    gives one window. Needs the session's truth (``ValueError`` otherwise, or for
+    ``bin_s`` <= 0)."""
+    if session.truth is None:
+        raise ValueError("binned errors need a session with its truth (a simulated one)")
+    if not bin_s > 0:
+        raise ValueError(f"the bin must be longer than 0 s, got {bin_s:g}")
+    truth = session.truth
+    err2 = np.sum((r.wrench[:, :3] - truth.external_wrench[r.sample, :3]) ** 2, axis=1)
+    free = ~truth.in_contact[r.sample] & (r.t >= start_s)
+    n_bins = max(int(np.ceil((float(r.t[-1]) - start_s) / bin_s)), 0) if len(r.t) else 0
+    which = np.floor((r.t[free] - start_s) / bin_s).astype(np.int64)
+    which = np.minimum(which, n_bins - 1)
+    counts = np.bincount(which, minlength=n_bins)
+    sums = np.bincount(which, weights=err2[free], minlength=n_bins)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rmse = np.sqrt(sums / counts)
+    return start_s + bin_s * np.arange(n_bins), rmse, counts

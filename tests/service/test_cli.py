@@ -94,7 +94,7 @@ def test_bench_arm_times_the_daemons_work_and_the_log_writers_apart(tmp_path):
 def test_recovery_measures_issue_4_per_seed_and_refuses_bad_settings(tmp_path):
     out = tmp_path / "recovery.json"
     run = wrenchd("recovery", "--seeds", "5", "--set", '{"adaptation": {"refit_shrink": 0}}',
-                  "--settled", "--json", str(out))
+                  "--settled", "--bins", "40", "--json", str(out))
     result = json.loads(out.read_text())
     (row,) = result["rows"]
     assert row["seed"] == 5 and row["contact_offered"] == 0 and row["offered"] > 10_000
@@ -106,7 +106,14 @@ def test_recovery_measures_issue_4_per_seed_and_refuses_bad_settings(tmp_path):
     assert 0.5 < row["settled_post_n"] < 2.0 and row["settled_post_n"] != row["post_n"]
     assert row["excess"] == pytest.approx(row["post_n"] / row["settled_post_n"], abs=2e-4)
     assert "excess over settled" in run.stdout
+    # per 40 s bin from the change (88 s) to the end (220 s): 88, 128, 168, 208 (partial)
+    assert row["bins_start_s"] == [88.0, 128.0, 168.0, 208.0]
+    assert all(0.2 < v < 3.0 for v in row["post_bins_n"] + row["settled_bins_n"])
+    assert row["excess_bins"] == pytest.approx(
+        [a / b for a, b in zip(row["post_bins_n"], row["settled_bins_n"])], abs=2e-4)
+    assert "excess over settled per 40 s bin from 88 s" in run.stdout
     for args, word in ((["--set", "[1]"], "JSON object"),
+                       (["--bins", "0"], "--bins must be a positive"),
                        (["--set", '{"gate": {"enter_sigma": -1}}'], "enter_sigma"),
                        (["--duration", "100"], "free motion after")):
         bad = wrenchd("recovery", "--seeds", "5", *args, check=False)

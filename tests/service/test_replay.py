@@ -21,7 +21,7 @@ from service.adaptation import AdaptationConfig
 from service.pipeline import ArmPipeline, PipelineConfig
 from service.policies import Policy, get_policy, policy_names, register_policy
 from service.replay import STEP1_CHUNKS, BatchedEstimator, replay
-from service.replay_metrics import replay_metrics
+from service.replay_metrics import binned_free_error, replay_metrics
 from service.replay_output import write_replay_mcap
 from service.replay_source import joint_state_messages, load_session
 
@@ -136,6 +136,24 @@ def test_drift_recovery_metric_on_insufflation(fs):
     (d,) = m["drifts"]
     assert d["id"] == "insufflation_step" and d["onset_s"] == pytest.approx(8.0)
     assert d["free_force_error_before_N"] > 0 and d["free_force_error_after_N"] > 0
+
+
+def test_binned_free_error_splits_the_free_motion_error_after_a_time(fs, contact_session):
+    r = replay(contact_session, fs, get_policy("frozen").configure(BASE))
+    truth = contact_session.truth
+    starts, rmse, counts = binned_free_error(r, contact_session, 2.5, 3.0)
+    np.testing.assert_allclose(starts, [2.5, 5.5, 8.5])          # the last bin is partial
+    err = np.linalg.norm(r.wrench[:, :3] - truth.external_wrench[r.sample, :3], axis=1)
+    free = ~truth.in_contact[r.sample]
+    for a, e, n in zip(starts, rmse, counts):
+        inside = free & (r.t >= a) & (r.t < a + 3.0)
+        assert n == inside.sum() > 0
+        assert e == pytest.approx(np.sqrt(np.mean(err[inside] ** 2)), rel=1e-9)
+    # the bins together hold every free sample from the start on, and only those
+    assert counts.sum() == (free & (r.t >= 2.5)).sum()
+    for bad in (0.0, -1.0, float("nan")):
+        with pytest.raises(ValueError, match="longer than 0 s"):
+            binned_free_error(r, contact_session, 2.5, bad)
 
 
 def _daemon_log(path_dir: Path, session) -> Path:
