@@ -74,7 +74,7 @@ def run_recovery(seeds: list[int], settings: list[str], duration_s: float = 220.
     from adapters.sim.scenarios import run_scenario
     from service.daemon import load_free_space
     from service.replay import replay
-    from service.replay_metrics import binned_free_error, recovery_levels
+    from service.replay_metrics import free_error_series, recovery_levels
     from service.threads import one_compute_thread
 
     one_compute_thread()
@@ -114,8 +114,9 @@ def run_recovery(seeds: list[int], settings: list[str], duration_s: float = 220.
                     f"{row['offered']}, free motion offered in the minute after the change "
                     f"{row['free_offered_after']:.0%}")
             if bin_s is not None:
-                starts, post_bins, _ = binned_free_error(r, session, change_s, bin_s)
-                row.update(bins_start_s=_rounded(starts), post_bins_n=_rounded(post_bins))
+                bins = free_error_series(r, session, bin_s, start_s=change_s, rms=True)
+                post_bins = bins["free"]
+                row.update(bins_start_s=_rounded(bins["t"]), post_bins_n=_rounded(post_bins))
             if settled:
                 reference = references[seed]
                 r_ref = replay(reference, free_space, config, step1="torch")
@@ -125,7 +126,8 @@ def run_recovery(seeds: list[int], settings: list[str], duration_s: float = 220.
                            seconds=round(time.perf_counter() - t0, 1))
                 line += f"; settled {post_ref:.3f} N, excess {post / post_ref:.3f}"
                 if bin_s is not None:
-                    _, ref_bins, _ = binned_free_error(r_ref, reference, change_s, bin_s)
+                    ref_bins = free_error_series(r_ref, reference, bin_s, start_s=change_s,
+                                                 rms=True)["free"]
                     n = min(len(post_bins), len(ref_bins))
                     with np.errstate(invalid="ignore"):
                         excess_bins = post_bins[:n] / ref_bins[:n]

@@ -46,28 +46,48 @@ def _errors(r: ReplayResult, ref: np.ndarray, contact: np.ndarray) -> dict[str, 
                                "free": _rms(et[~contact])}}
 
 
-def free_error_series(r: ReplayResult, session: Session, bin_s: float = 1.0
-                      ) -> dict[str, np.ndarray]:
-    """Per ``bin_s`` bin: mean free-motion force error [N] and contact force error [N]."""
+def free_error_series(r: ReplayResult, session: Session, bin_s: float = 1.0,
+                      start_s: float | None = None, rms: bool = False) -> dict[str, np.ndarray]:
+    """Per ``bin_s`` bin from ``start_s`` (default: the first sample) to the last sample:
+    ``t`` the bins' start times [s], ``free`` and ``contact`` the mean (``rms``: root mean
+    square) force error [N] of the free-motion and contact samples in it (NaN where it has
+    none), ``free_n`` how many free-motion samples it has. Without truth, ``free`` is the mean
+    estimated force [N] over every sample and ``contact`` is NaN.
+
+    Raises:
+        ValueError: ``bin_s`` is not > 0.
+    """
+    if not bin_s > 0:
+        raise ValueError(f"the bin must be longer than 0 s, got {bin_s:g}")
     truth = session.truth
     t = r.t
-    edges = np.arange(t[0], t[-1] + bin_s, bin_s) if len(t) else np.zeros(1)
-    idx = np.clip(np.searchsorted(edges, t, side="right") - 1, 0, max(len(edges) - 1, 0))
-    nb = len(edges)
-    if truth is None:
-        mag = np.linalg.norm(r.wrench[:, :3], axis=1)
-        cnt = np.bincount(idx, minlength=nb)
-        with np.errstate(invalid="ignore"):
-            return {"t": edges, "free": np.bincount(idx, mag, nb) / cnt,
-                    "contact": np.full(nb, np.nan)}
-    contact = truth.in_contact[r.sample]
-    ef = np.linalg.norm(r.wrench[:, :3] - truth.external_wrench[r.sample, :3], axis=1)
-    out = {"t": edges}
-    for name, mask in (("free", ~contact), ("contact", contact)):
+    start = float(t[0]) if start_s is None and len(t) else float(start_s or 0.0)
+    nb = max(int(np.ceil((float(t[-1]) - start) / bin_s)), 1) \
+        if len(t) and t[-1] >= start else 0
+    inside = t >= start
+    idx = np.minimum(np.floor((t - start) / bin_s).astype(np.int64), nb - 1)
+    edges = start + bin_s * np.arange(nb)
+
+    def per_bin(values: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        mask = mask & inside
         cnt = np.bincount(idx[mask], minlength=nb)
         with np.errstate(invalid="ignore", divide="ignore"):
-            out[name] = np.bincount(idx[mask], ef[mask], nb) / cnt
-    return out
+            if rms:
+                return np.sqrt(np.bincount(idx[mask], values[mask] ** 2, nb) / cnt), cnt
+            return np.bincount(idx[mask], values[mask], nb) / cnt, cnt
+
+    if truth is None:
+        free, n = per_bin(np.linalg.norm(r.wrench[:, :3], axis=1), np.ones(len(t), bool))
+        return {"t": edges, "free": free, "contact": np.full(nb, np.nan), "free_n": n}
+    contact = truth.in_contact[r.sample]
+    ef = force_error_n(r, truth)
+    free, n = per_bin(ef, ~contact)
+    return {"t": edges, "free": free, "contact": per_bin(ef, contact)[0], "free_n": n}
+
+
+def force_error_n(r: ReplayResult, truth) -> np.ndarray:
+    """(N,) size of the force error [N] of each replayed sample against the truth."""
+    return np.linalg.norm(r.wrench[:, :3] - truth.external_wrench[r.sample, :3], axis=1)
 
 
 def _recovery(t: np.ndarray, ef: np.ndarray, free: np.ndarray, onset: float
@@ -139,7 +159,7 @@ def replay_metrics(r: ReplayResult, session: Session) -> dict[str, Any]:
     else:
         m["contamination"] = {"offered": 0, "in_contact": 0, "fraction": None,
                               "in_contact_after_calibration": 0}
-    ef = np.linalg.norm(r.wrench[:, :3] - truth.external_wrench[r.sample, :3], axis=1)
+    ef = force_error_n(r, truth)
     m["drifts"] = [{"id": name, "end_s": end, **_recovery(r.t, ef, ~contact, start)}
                    for name, start, end in drift_onsets(session)]
     return m
@@ -200,7 +220,7 @@ def recovery_levels(r: ReplayResult, session: Session, change_s: float,
     if truth is None:
         raise ValueError("recovery levels need a session with its truth (a simulated one)")
     t = r.t
-    err = np.linalg.norm(r.wrench[:, :3] - truth.external_wrench[r.sample, :3], axis=1)
+    err = force_error_n(r, truth)
     free = ~truth.in_contact[r.sample]
     rate_hz = 1.0 / float(np.median(np.diff(session.joint_states.t)))
     pre = free & (t >= change_s - window_s) & (t < change_s)
@@ -213,26 +233,3 @@ def recovery_levels(r: ReplayResult, session: Session, change_s: float,
     post = free & (t >= start) & (t < start + window_s)
     return float(np.sqrt(np.mean(err[pre] ** 2))), float(np.sqrt(np.mean(err[post] ** 2)))
 
-
-def binned_free_error(r: ReplayResult, session: Session, start_s: float,
-                      bin_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Free-motion force RMSE [N] per ``bin_s`` bin from ``start_s`` to the session's end:
-    the bins' start times [s], their RMSE (NaN where a bin has no free sample) and their
-    free-sample counts. How the error evolves after a change, where :func:`recovery_levels`
-    gives one window. Needs the session's truth (``ValueError`` otherwise, or for
-    ``bin_s`` <= 0)."""
-    if session.truth is None:
-        raise ValueError("binned errors need a session with its truth (a simulated one)")
-    if not bin_s > 0:
-        raise ValueError(f"the bin must be longer than 0 s, got {bin_s:g}")
-    truth = session.truth
-    err2 = np.sum((r.wrench[:, :3] - truth.external_wrench[r.sample, :3]) ** 2, axis=1)
-    free = ~truth.in_contact[r.sample] & (r.t >= start_s)
-    n_bins = max(int(np.ceil((float(r.t[-1]) - start_s) / bin_s)), 0) if len(r.t) else 0
-    which = np.floor((r.t[free] - start_s) / bin_s).astype(np.int64)
-    which = np.minimum(which, n_bins - 1)
-    counts = np.bincount(which, minlength=n_bins)
-    sums = np.bincount(which, weights=err2[free], minlength=n_bins)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        rmse = np.sqrt(sums / counts)
-    return start_s + bin_s * np.arange(n_bins), rmse, counts

@@ -21,7 +21,7 @@ from service.adaptation import AdaptationConfig
 from service.pipeline import ArmPipeline, PipelineConfig
 from service.policies import Policy, get_policy, policy_names, register_policy
 from service.replay import STEP1_CHUNKS, BatchedEstimator, replay
-from service.replay_metrics import binned_free_error, replay_metrics
+from service.replay_metrics import free_error_series, replay_metrics
 from service.replay_output import write_replay_mcap
 from service.replay_source import joint_state_messages, load_session
 
@@ -138,22 +138,29 @@ def test_drift_recovery_metric_on_insufflation(fs):
     assert d["free_force_error_before_N"] > 0 and d["free_force_error_after_N"] > 0
 
 
-def test_binned_free_error_splits_the_free_motion_error_after_a_time(fs, contact_session):
+def test_free_error_series_bins_the_error_from_a_time_on(fs, contact_session):
     r = replay(contact_session, fs, get_policy("frozen").configure(BASE))
     truth = contact_session.truth
-    starts, rmse, counts = binned_free_error(r, contact_session, 2.5, 3.0)
-    np.testing.assert_allclose(starts, [2.5, 5.5, 8.5])          # the last bin is partial
     err = np.linalg.norm(r.wrench[:, :3] - truth.external_wrench[r.sample, :3], axis=1)
-    free = ~truth.in_contact[r.sample]
-    for a, e, n in zip(starts, rmse, counts):
-        inside = free & (r.t >= a) & (r.t < a + 3.0)
-        assert n == inside.sum() > 0
-        assert e == pytest.approx(np.sqrt(np.mean(err[inside] ** 2)), rel=1e-9)
-    # the bins together hold every free sample from the start on, and only those
-    assert counts.sum() == (free & (r.t >= 2.5)).sum()
+    contact = truth.in_contact[r.sample]
+    for rms, stat in ((True, lambda e: np.sqrt(np.mean(e ** 2))), (False, np.mean)):
+        s = free_error_series(r, contact_session, 3.0, start_s=2.5, rms=rms)
+        np.testing.assert_allclose(s["t"], [2.5, 5.5, 8.5])      # the last bin is partial
+        for k, a in enumerate(s["t"]):
+            inside = (r.t >= a) & (r.t < a + 3.0)
+            assert s["free_n"][k] == (inside & ~contact).sum() > 0
+            assert s["free"][k] == pytest.approx(stat(err[inside & ~contact]), rel=1e-9)
+            if (inside & contact).any():
+                assert s["contact"][k] == pytest.approx(stat(err[inside & contact]), rel=1e-9)
+            else:
+                assert np.isnan(s["contact"][k])
+        # the bins together hold every free sample from the start on, and only those
+        assert s["free_n"].sum() == (~contact & (r.t >= 2.5)).sum()
+    whole = free_error_series(r, contact_session)                 # 1 s bins from the start
+    assert whole["t"][0] == r.t[0] and len(whole["t"]) == int(np.ceil(r.t[-1] - r.t[0]))
     for bad in (0.0, -1.0, float("nan")):
         with pytest.raises(ValueError, match="longer than 0 s"):
-            binned_free_error(r, contact_session, 2.5, bad)
+            free_error_series(r, contact_session, bad)
 
 
 def _daemon_log(path_dir: Path, session) -> Path:
