@@ -91,6 +91,27 @@ def test_bench_arm_times_the_daemons_work_and_the_log_writers_apart(tmp_path):
     assert result["samples"] == 400
 
 
+def test_compare_writes_the_table_json_and_a_plot_per_session(tmp_path):
+    out = tmp_path / "cmp"
+    run = wrenchd("compare", "--policies", "gated,frozen", "--sessions",
+                  "sim:insufflation-change:20:1", "--out", str(out))
+    assert "wrote" in run.stdout
+    rows = json.loads((out / "compare.json").read_text())
+    by_policy = {r["policy"]: r for r in rows}
+    assert set(by_policy) == {"gated", "frozen"}
+    assert by_policy["frozen"]["final_model_version"] == 0
+    assert by_policy["gated"]["final_model_version"] > 0       # it adapted
+    (drift,) = by_policy["gated"]["drifts"]
+    assert drift["free_force_error_after_N"] > 0
+    table = (out / "compare.md").read_text()
+    assert table.count("sim:insufflation-change:20:1 |") == 2
+    png = (out / "insufflation-change_20_1.png").read_bytes()
+    assert png[:8] == b"\x89PNG\r\n\x1a\n"
+    bad = wrenchd("compare", "--policies", "gated,nonsense", "--sessions",
+                  "sim:insufflation-change:20:1", "--out", str(out), check=False)
+    assert bad.returncode == 2 and "nonsense" in bad.stderr and "Traceback" not in bad.stderr
+
+
 def test_recovery_measures_issue_4_per_seed_and_refuses_bad_settings(tmp_path):
     out = tmp_path / "recovery.json"
     run = wrenchd("recovery", "--seeds", "5", "--set", '{"adaptation": {"refit_shrink": 0}}',
