@@ -1,0 +1,64 @@
+"""``wrenchd echo`` against a real daemon: three processes and this one on loopback zenoh."""
+
+from __future__ import annotations
+
+import json
+import re
+import signal
+import subprocess
+import sys
+
+from tests.service.test_daemon import free_port, write_config
+
+CLI = [sys.executable, "-m", "service.cli"]
+
+
+def test_echo_prints_live_wrenches_events_and_status(tmp_path):
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    config = write_config(tmp_path / "wrenchd.toml", endpoint, "json", tmp_path / "logs")
+    daemon = subprocess.Popen([*CLI, "serve", "--config", str(config)], stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE, text=True)
+    echo = None
+    try:
+        assert "dvrk/PSM2/measured_js" in daemon.stdout.readline()
+        echo = subprocess.Popen([*CLI, "echo", "--arm", "PSM2", "--connect", endpoint,
+                                 "--count", "40", "--every", "1", "--events", "--timeout", "90"],
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        assert "listening on 'dvrk/PSM2/wrenchd/measured_cf'" in echo.stdout.readline()
+        robot = subprocess.run(
+            [*CLI, "robot", "--scenario", "trocar", "--seed", "2", "--arm", "PSM2",
+             "--duration", "3", "--connect", endpoint, "--out-dir", str(tmp_path / "robot"),
+             "--quiet"], capture_output=True, text=True, timeout=120)
+        assert robot.returncode == 0, robot.stderr
+        out, err = echo.communicate(timeout=60)
+        assert echo.returncode == 0, err
+        status = subprocess.run([*CLI, "echo", "--arm", "PSM2", "--connect", endpoint,
+                                 "--status", "--timeout", "10"], capture_output=True, text=True,
+                                timeout=60)
+    finally:
+        if echo is not None and echo.poll() is None:
+            echo.kill()
+        daemon.send_signal(signal.SIGINT)
+        daemon.communicate(timeout=60)
+    line = re.compile(r"t=\s*[\d.]+ s  F=\[.*\] N  \|F\|=\s*[\d.]+ N  T=\[.*\] N m  "
+                      r"(free|contact) v\d+")
+    printed = [x for x in out.splitlines() if x.startswith("t=")]
+    assert len(printed) == 40 and all(line.match(x) for x in printed), printed[:3]
+    stamps = [float(x.split()[0][2:] or x.split()[1]) for x in printed]
+    assert stamps == sorted(stamps)
+    assert any(x.startswith("event: ") and '"calibrating"' in x for x in out.splitlines())
+    assert out.splitlines()[-1] == "wrenchd echo: 40 wrenches"
+    assert status.returncode == 0, status.stderr
+    answer = json.loads(status.stdout)
+    assert answer["counters"]["estimated"] >= 40 and answer["arm"] == "PSM2"
+
+
+def test_echo_says_when_no_daemon_answers():
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    status = subprocess.run([*CLI, "echo", "--connect", endpoint, "--status", "--timeout", "1"],
+                            capture_output=True, text=True, timeout=60)
+    assert status.returncode == 1
+    assert "no answer from 'dvrk/PSM1/wrenchd/status' within 1 s" in status.stdout
+    quiet = subprocess.run([*CLI, "echo", "--connect", endpoint, "--timeout", "1"],
+                           capture_output=True, text=True, timeout=60)
+    assert quiet.returncode == 1 and "wrenchd echo: 0 wrenches" in quiet.stdout
