@@ -21,6 +21,7 @@ import numpy as np
 
 from models.discrepancy.workflow import run_discrepancy
 from service.hidden_effects import HIDDEN_EFFECTS, MIN_SHRINK, PAIRS, TOLERANCE, judge, make_case
+from service.replay_output import _finite
 
 
 def _run_case(hidden: tuple[str, ...], seed: int, duration: float) -> dict[str, Any]:
@@ -71,7 +72,8 @@ def hidden_effect_sweep(out: Path, seeds: int, duration: float, pair_seeds: int,
         "max_discrepancy_s": float(np.max([r["discrepancy_s"] for r in rows])),
         "total_s": total, "machine": f"{platform.machine()}, {os.cpu_count()} cores",
     }
-    (out / "hidden-effects.json").write_text(json.dumps({"summary": summary, "runs": rows},
+    # strict JSON: a rate over no runs (no pairs asked for) is null, not NaN
+    (out / "hidden-effects.json").write_text(json.dumps(_finite({"summary": summary, "runs": rows}),
                                                         indent=1, default=float) + "\n")
     lines = ["# Hidden-effect study of `wrenchd discrepancy`", "",
              f"Command: `OMP_NUM_THREADS=1 nice -n 10 wrenchd discrepancy-sweep --seeds {seeds} "
