@@ -91,6 +91,30 @@ def test_bench_arm_times_the_daemons_work_and_the_log_writers_apart(tmp_path):
     assert result["samples"] == 400
 
 
+def test_bench_service_reports_issue_4s_fields_from_a_real_daemon(tmp_path):
+    out = tmp_path / "service.json"
+    wrenchd("bench", "service", "--duration", "3", "--rate", "200", "--json", str(out))
+    r = json.loads(out.read_text())
+    # the issue's contract: {"e2e_p50_us", "e2e_p99_us", "dropped", "rate_hz"}
+    assert 0 < r["e2e_p50_us"] <= r["e2e_p99_us"] < 1e6
+    assert r["dropped"] == 0 and r["arms"] == 1 and r["adaptation"] is True
+    assert r["rate_hz"] == pytest.approx(200.0, rel=0.05)
+    assert r["per_arm"]["PSM1"]["received"] > 0
+
+
+def test_bench_replay_times_the_replay_variants(tmp_path):
+    out = tmp_path / "replay.json"
+    wrenchd("bench", "replay", "--duration", "20", "--json", str(out))
+    r = json.loads(out.read_text())
+    assert r["samples"] == 20 * 200 and r["session"] == "sim:insufflation-change:20:3"
+    for variant in ("default", "inline_adaptation", "kernel_step1", "frozen_no_adaptation"):
+        assert r[variant]["samples_per_s"] > 0 and r[variant]["wall_s"] > 0
+    assert r["frozen_no_adaptation"]["rounds"] == 0
+    assert r["default"]["rounds"] > 0 and r["inline_adaptation"]["rounds"] > 0
+    assert r["samples_per_s"] == r["default"]["samples_per_s"]
+    assert r["realtime_factor"] == pytest.approx(r["samples_per_s"] / 200.0, abs=0.01)
+
+
 def test_compare_writes_the_table_json_and_a_plot_per_session(tmp_path):
     out = tmp_path / "cmp"
     run = wrenchd("compare", "--policies", "gated,frozen", "--sessions",
