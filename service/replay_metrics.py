@@ -61,7 +61,10 @@ def free_error_series(r: ReplayResult, session: Session, bin_s: float = 1.0,
         raise ValueError(f"the bin must be longer than 0 s, got {bin_s:g}")
     truth = session.truth
     t = r.t
-    start = float(t[0]) if start_s is None and len(t) else float(start_s or 0.0)
+    if start_s is not None:
+        start = float(start_s)
+    else:
+        start = float(t[0]) if len(t) else 0.0
     nb = max(int(np.ceil((float(t[-1]) - start) / bin_s)), 1) \
         if len(t) and t[-1] >= start else 0
     inside = t >= start
@@ -232,4 +235,3 @@ def recovery_levels(r: ReplayResult, session: Session, change_s: float,
     start = t[after[k]]
     post = free & (t >= start) & (t < start + window_s)
     return float(np.sqrt(np.mean(err[pre] ** 2))), float(np.sqrt(np.mean(err[post] ** 2)))
-
