@@ -1,0 +1,226 @@
+"""The body wall's stiffness, tracked from free motion, and carried over at a set-up change.
+
+Why: after an announced set-up change (the insufflator's pressure set higher, say), the
+adaptation's replay buffer still holds the old set-up's torques; every mini-batch pulls the
+correction net back towards them (measured in the README, "Insufflation recovery"). The body
+wall at the port is the effect insufflation changes (:mod:`models.physics.effects.body_wall`):
+a lateral spring on the shaft whose stiffness ``k`` [N/m] rises with the pressure. Its torque
+on yaw and pitch is ``k g(q)``, with ``g`` the torque per N/m at the incision point (plus a
+damping term ``c h(q, dq)``). So once the stiffness before and after the change is known,
+every older buffered sample can be *carried over*: its measured yaw and pitch torques get
+``(k_after - k_before) g(q)`` added, and the whole buffer speaks for the new set-up.
+
+How ``k`` is measured: on the *step-1* residual (measured torque minus the free-space network's
+prediction), which still holds the whole body wall (the correction net's residual does not: it
+has absorbed most of it, and what is left is dominated by the net's misfit). Per ``bin_s`` bin
+of sample time, yaw and pitch residuals of the free-motion samples offered for training are
+regressed on ``[g, h, 1_yaw, 1_pitch]`` (stiffness, damping, one offset per joint: the
+free-space net's local bias); the bin's ``k`` is the first coefficient. A segment (the time
+between announced changes) is worth one fit over its bins, stiffness and damping shared and
+offsets per bin, so a bin that saw little free motion (the gate calls much of the motion just
+after a change contact) weighs little. On the simulator's ``insufflation-change`` (truth
+580 -> 900 N/m), 10 s bins read ~690 -> ~1 050 N/m with a spread of ~80-150 N/m between
+bins: the level is biased by the free-space net's misfit, the step much less (a scratch
+measurement, described in issue 4's notes).
+
+The change must be *announced* (:meth:`BodyWallTracker.announce`: the daemon's ``setup``
+key). Finding it from the series alone was tried and does not work: bins vary with the
+workspace by as much as the step (false alarms on unchanged sessions, 20-40 s late on
+changed ones).
+
+Pure: arrays in, arrays out. The incision point is a setting, by default the body wall
+effect's (``BodyWallParams.incision_m``), which on the simulator is the truth: how much a wrong
+incision costs is not measured yet (the stiffness fit absorbs part of it). On a real set-up
+it would come from the port placement or from the discrepancy workflow.
+"""
+
+from __future__ import annotations
+
+import math
+from bisect import bisect_right
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from models.errors import DataError
+from models.physics.effects.base import Motion
+from models.physics.effects.body_wall import BodyWall, BodyWallParams
+
+#: joints the body wall acts on (0-based): outer yaw and pitch
+WALL_JOINTS = (0, 1)
+_N_COLS = 4                      # stiffness, damping, offset yaw, offset pitch
+
+
+class BodyWallTrackerConfig(BaseModel):
+    """How the body wall's stiffness is tracked and the buffer carried over."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    enabled: bool = Field(default=True, description="carry the buffer over at an announced "
+                                                    "set-up change")
+    bin_s: float = Field(default=10.0, gt=0.0, description="stiffness bin length [s]")
+    min_bin_samples: int = Field(default=300, ge=8,
+                                 description="free-motion samples a bin needs to count")
+    incision_m: tuple[float, float, float] = Field(
+        default=BodyWallParams().incision_m,
+        description="incision point relative to the RCM, base axes [m]")
+
+
+def wall_regressors(q: np.ndarray, dq: np.ndarray, incision_m) -> tuple[np.ndarray, np.ndarray]:
+    """Yaw and pitch torque per unit of the body wall's stiffness [N m per N/m] and of its
+    damping [N m per N s/m]: ``(g, h)``, each (N, 2), for positions and velocities (N, 6)."""
+    q = np.asarray(q, dtype=np.float64)
+    dq = np.asarray(dq, dtype=np.float64)
+    motion = Motion(np.zeros(len(q)), q, dq, np.zeros_like(q), None)
+    base = {"incision_m": tuple(incision_m), "k_per_mmhg": 0.0}
+    g = BodyWall({**base, "k0_n_per_m": 1.0, "damping_ns_per_m": 0.0}).torque(motion)
+    h = BodyWall({**base, "k0_n_per_m": 0.0, "damping_ns_per_m": 1.0}).torque(motion)
+    cols = list(WALL_JOINTS)
+    return g[:, cols], h[:, cols]
+
+
+class BodyWallTracker:
+    """Per-bin stiffness of the body wall, and its change across announced set-up changes.
+
+    Samples are added with their sample times; a bin is closed once a sample at least one bin
+    later arrives (samples come in time order, give or take the pipeline's delay line). The
+    segment of a time is the number of announced changes at or before it.
+    """
+
+    def __init__(self, config: BodyWallTrackerConfig | None = None) -> None:
+        self.config = config if config is not None else BodyWallTrackerConfig()
+        self.starts: list[float] = []                       # announced changes [s], sorted
+        self._open: dict[tuple[int, int], list] = {}        # (segment, bin) -> [A, b, n]
+        self.bins: list[tuple[float, int, float, int]] = []  # (bin start [s], segment, k, n)
+        # per segment, the bins' information on (k, c) with their offsets eliminated
+        self._pooled: dict[int, list[np.ndarray]] = {}       # segment -> [S (2, 2), r (2,)]
+        self._latest = -math.inf
+
+    # -- input ---------------------------------------------------------------------------
+    def segment_of(self, t: np.ndarray) -> np.ndarray:
+        """Segment index of each sample time (N,); NaN times are in segment -1."""
+        t = np.asarray(t, dtype=np.float64)
+        seg = np.searchsorted(np.asarray(self.starts), t, side="right")
+        return np.where(np.isfinite(t), seg, -1)
+
+    def add(self, t: np.ndarray, q: np.ndarray, dq: np.ndarray,
+            residual: np.ndarray) -> None:
+        """Free-motion samples: times (N,) [s], positions and velocities (N, 6), step-1
+        residual torques of yaw and pitch (N, 2) [N m]. Samples without a finite time are
+        ignored.
+
+        Raises:
+            DataError: shapes that do not match.
+        """
+        t = np.asarray(t, dtype=np.float64).reshape(-1)
+        q, dq = np.asarray(q, np.float64), np.asarray(dq, np.float64)
+        residual = np.asarray(residual, np.float64)
+        n = len(t)
+        if q.shape != (n, 6) or dq.shape != (n, 6) or residual.shape != (n, 2):
+            raise DataError(f"body wall tracker: expected (N,), (N, 6), (N, 6), (N, 2), got "
+                            f"{t.shape}, {q.shape}, {dq.shape}, {residual.shape}")
+        ok = np.isfinite(t) & np.isfinite(residual).all(axis=1) & np.isfinite(q).all(axis=1) \
+            & np.isfinite(dq).all(axis=1)
+        if not ok.all():
+            t, q, dq, residual = t[ok], q[ok], dq[ok], residual[ok]
+        if len(t) == 0:
+            return
+        g, h = wall_regressors(q, dq, self.config.incision_m)
+        seg = self.segment_of(t)
+        b = np.floor((t - self._origin(seg)) / self.config.bin_s).astype(np.int64)
+        for key in sorted(set(zip(seg.tolist(), b.tolist()))):
+            m = (seg == key[0]) & (b == key[1])
+            k = int(m.sum())
+            x = np.zeros((2 * k, _N_COLS))
+            x[:, 0] = g[m].reshape(-1)
+            x[:, 1] = h[m].reshape(-1)
+            x[0::2, 2] = 1.0
+            x[1::2, 3] = 1.0
+            acc = self._open.setdefault(key, [np.zeros((_N_COLS, _N_COLS)), np.zeros(_N_COLS), 0])
+            acc[0] += x.T @ x
+            acc[1] += x.T @ residual[m].reshape(-1)
+            acc[2] += k
+        self._latest = max(self._latest, float(t.max()))
+        self._close(self._latest)
+
+    def _origin(self, seg: np.ndarray) -> np.ndarray:
+        """Where each segment's bins start [s]: 0 for the first, else its announced change
+        (bins never straddle a change)."""
+        starts = np.concatenate([[0.0], self.starts])
+        return starts[np.maximum(seg, 0)]
+
+    def announce(self, t: float) -> None:
+        """A set-up change at sample time ``t`` [s]: later samples start a new segment.
+
+        Raises:
+            DataError: ``t`` is not finite.
+        """
+        if not math.isfinite(t):
+            raise DataError(f"a set-up change needs a finite time, got {t!r}")
+        self.starts.insert(bisect_right(self.starts, t), float(t))
+        # Samples are binned by the segments known when they arrive: announce a change before
+        # the samples after it are added (the pipeline's delay line gives it a few seconds).
+
+    # -- output --------------------------------------------------------------------------
+    def _close(self, latest: float) -> None:
+        """Close the bins that end at or before ``latest`` [s] (samples come in time order)
+        and those of earlier segments."""
+        c = self.config
+        current = int(self.segment_of(np.array([latest]))[0])
+        done = [key for key in self._open
+                if key[0] < current
+                or float(self._origin(np.array([key[0]]))[0]) + (key[1] + 1) * c.bin_s <= latest]
+        for key in sorted(done):
+            a, v, n = self._open.pop(key)
+            if n < c.min_bin_samples:
+                continue
+            try:
+                coef = np.linalg.solve(a, v)
+                # the bin's own offsets eliminated (Schur complement): what it says of (k, c)
+                gain = a[:2, 2:] @ np.linalg.inv(a[2:, 2:])
+            except np.linalg.LinAlgError:
+                continue                                  # no excitation: nothing to say
+            if not np.isfinite(coef).all():
+                continue
+            start = float(self._origin(np.array([key[0]]))[0]) + key[1] * c.bin_s
+            self.bins.append((start, key[0], float(coef[0]), n))
+            pooled = self._pooled.setdefault(key[0], [np.zeros((2, 2)), np.zeros(2)])
+            pooled[0] += a[:2, :2] - gain @ a[2:, :2]
+            pooled[1] += v[:2] - gain @ v[2:]
+
+    def stiffness(self, segment: int) -> float | None:
+        """Stiffness [N/m] of a segment: one least-squares fit over its closed bins, stiffness
+        and damping shared, yaw and pitch offsets per bin (a bin that saw little motion, or
+        little of it free, weighs little); None before its first bin."""
+        pooled = self._pooled.get(segment)
+        if pooled is None:
+            return None
+        try:
+            k = float(np.linalg.solve(pooled[0], pooled[1])[0])
+        except np.linalg.LinAlgError:
+            return None
+        return k if math.isfinite(k) else None
+
+    def carry_over(self, t: np.ndarray) -> np.ndarray:
+        """The stiffness change [N/m] that brings a sample of time ``t`` (N,) to the latest
+        segment: ``k(latest) - k(its segment)``; 0 where either is not known yet (or the
+        time is not finite)."""
+        seg = self.segment_of(t)
+        out = np.zeros(len(seg))
+        now = len(self.starts)
+        k_now = self.stiffness(now)
+        if k_now is None:
+            return out
+        for s in set(seg.tolist()) - {now, -1}:
+            k = self.stiffness(s)
+            if k is not None:
+                out[seg == s] = k_now - k
+        return out
+
+    def summary(self) -> dict:
+        """Segments (start [s], stiffness [N/m] or None, bins) for status and events."""
+        bounds = [-math.inf, *self.starts]
+        return {"segments": [{"start_s": b if math.isfinite(b) else None,
+                              "stiffness_n_per_m": self.stiffness(i),
+                              "bins": sum(1 for _, s, _, _ in self.bins if s == i)}
+                             for i, b in enumerate(bounds)]}

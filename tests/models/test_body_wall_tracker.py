@@ -1,0 +1,107 @@
+"""The body wall tracker: stiffness per bin from yaw and pitch residuals, carried over across
+announced set-up changes."""
+
+import numpy as np
+import pytest
+
+from models.body_wall_tracker import BodyWallTracker, BodyWallTrackerConfig, wall_regressors
+from models.errors import DataError
+from models.physics.effects.base import Motion
+from models.physics.effects.body_wall import BodyWall
+
+
+def motion(n, seed=0, rate_hz=200.0):
+    """Yaw and pitch sweeping +-0.5 rad at two frequencies, the rest still."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) / rate_hz
+    q = np.zeros((n, 6))
+    dq = np.zeros((n, 6))
+    f1, f2 = 0.11 + 0.02 * rng.random(), 0.07 + 0.02 * rng.random()
+    q[:, 0] = 0.5 * np.sin(2 * np.pi * f1 * t)
+    q[:, 1] = 0.4 * np.sin(2 * np.pi * f2 * t + 0.3)
+    dq[:, 0] = 0.5 * 2 * np.pi * f1 * np.cos(2 * np.pi * f1 * t)
+    dq[:, 1] = 0.4 * 2 * np.pi * f2 * np.cos(2 * np.pi * f2 * t + 0.3)
+    q[:, 2] = 0.12
+    return t, q, dq
+
+
+def wall_torque(q, dq, pressure):
+    m = Motion(np.zeros(len(q)), q, dq, np.zeros_like(q), None)
+    return BodyWall().torque(m, {"pressure_mmhg": pressure})[:, :2]
+
+
+def test_regressors_rebuild_the_effect():
+    """k g + c h is the body wall effect's own torque (its defaults: k = 100 + 40 * 12)."""
+    _, q, dq = motion(500)
+    g, h = wall_regressors(q, dq, BodyWall().params.incision_m)
+    k = 100.0 + 40.0 * 12.0
+    np.testing.assert_allclose(k * g + 5.0 * h, wall_torque(q, dq, 12.0), atol=1e-12)
+
+
+def test_stiffness_step_across_an_announced_change():
+    """12 -> 20 mmHg at 60 s with noise and a joint offset: each segment's stiffness within
+    3 % of the truth (580, 900 N/m), and older samples are carried over by the difference."""
+    t, q, dq = motion(200 * 120)
+    rng = np.random.default_rng(1)
+    pressure = np.where(t < 60.0, 12.0, 20.0)
+    tau = np.where((t < 60.0)[:, None], wall_torque(q, dq, 12.0), wall_torque(q, dq, 20.0))
+    residual = tau + np.array([0.05, -0.03]) + 0.02 * rng.standard_normal(tau.shape)
+    tracker = BodyWallTracker()
+    tracker.announce(60.0)
+    for a in range(0, len(t), 250):                      # in pieces, as the pipeline offers
+        b = a + 250
+        tracker.add(t[a:b], q[a:b], dq[a:b], residual[a:b])
+    assert tracker.stiffness(0) == pytest.approx(580.0, rel=0.03)
+    assert tracker.stiffness(1) == pytest.approx(900.0, rel=0.03)
+    shift = tracker.carry_over(np.array([10.0, 59.9, 60.0, 100.0, np.nan]))
+    assert shift[0] == shift[1] == pytest.approx(tracker.stiffness(1) - tracker.stiffness(0))
+    assert shift[2] == shift[3] == shift[4] == 0.0
+    # no bin straddles the change: the new segment's bins start at it
+    starts = [b for b, s, _, _ in tracker.bins if s == 1]
+    assert starts[0] == 60.0 and all(b >= 60.0 for b in starts)
+    assert (pressure[t >= 60.0] == 20.0).all()
+    summary = tracker.summary()["segments"]
+    assert [s["start_s"] for s in summary] == [None, 60.0]
+
+
+def test_nothing_is_carried_before_the_new_segment_has_a_bin():
+    t, q, dq = motion(200 * 65)
+    tracker = BodyWallTracker()
+    tracker.add(t[t < 60.0], q[t < 60.0], dq[t < 60.0], wall_torque(q, dq, 12.0)[t < 60.0])
+    tracker.announce(60.0)
+    after = t >= 60.0
+    tracker.add(t[after], q[after], dq[after], wall_torque(q, dq, 20.0)[after])
+    # 5 s after the change: its first 10 s bin is still open
+    assert tracker.stiffness(1) is None
+    assert (tracker.carry_over(np.array([1.0, 30.0])) == 0.0).all()
+
+
+def test_unannounced_tracker_never_carries_over():
+    t, q, dq = motion(200 * 40)
+    tracker = BodyWallTracker()
+    tracker.add(t, q, dq, wall_torque(q, dq, 12.0))
+    assert tracker.stiffness(0) == pytest.approx(580.0, rel=1e-6)
+    assert (tracker.carry_over(t) == 0.0).all()
+
+
+def test_sparse_bins_and_bad_rows_are_ignored():
+    """A bin with fewer than min_bin_samples samples does not count; NaN rows are dropped."""
+    t, q, dq = motion(200 * 30)
+    tau = wall_torque(q, dq, 12.0)
+    tau[::7] = np.nan
+    tracker = BodyWallTracker(BodyWallTrackerConfig(min_bin_samples=5000))
+    tracker.add(t, q, dq, tau)
+    assert tracker.bins == [] and tracker.stiffness(0) is None
+    tracker = BodyWallTracker()
+    tracker.add(t, q, dq, tau)
+    assert tracker.stiffness(0) == pytest.approx(580.0, rel=1e-6)
+
+
+def test_bad_input_is_refused():
+    tracker = BodyWallTracker()
+    with pytest.raises(DataError, match="expected"):
+        tracker.add(np.zeros(3), np.zeros((3, 6)), np.zeros((3, 6)), np.zeros((3, 6)))
+    with pytest.raises(DataError, match="finite"):
+        tracker.announce(float("nan"))
+    with pytest.raises(ValueError):
+        BodyWallTrackerConfig(bin_s=0.0)
