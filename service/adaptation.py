@@ -17,6 +17,15 @@ process, :mod:`service.worker`) and by replay (inline, in simulated time):
   the held-out set restarts with samples after the drift (the old regime is no longer what
   "recent" means). The reservoir is kept (measured: emptying it, and re-learning the gate's
   scale, made the insufflation recovery worse and let more contact through).
+* :meth:`Adapter.on_setup_change` is told of a set-up change (the daemon's ``setup`` key):
+  adaptation gets eager as after a drift, and the buffer is *carried over*: the body wall's
+  stiffness is tracked per bin of sample time on the offered samples
+  (:class:`~models.body_wall_tracker.BodyWallTracker`), and before every round each buffered
+  sample from an earlier segment gets ``(k_now - k_then) g(q)`` added to its measured yaw and
+  pitch torques (``g``: the wall's torque per N/m). The shift follows the estimates as bins
+  close; each row remembers what it was given. Measured on ``insufflation-change`` seeds 3-8
+  (README, "Insufflation recovery"): every seed back within 10 % of its level before the
+  change, against 4 of 6 without the notice.
 
 Output-layer refit (``refit_shrink`` > 0). A round's few dozen Adam steps on mixed batches
 move the net only part of the way towards a new regime (an insufflation pressure step shifts
@@ -52,6 +61,8 @@ import numpy as np
 import torch
 from pydantic import BaseModel, ConfigDict, Field
 
+from models.body_wall_tracker import (WALL_JOINTS, BodyWallTracker, BodyWallTrackerConfig,
+                                     wall_regressors)
 from models.estimator.corr_finetune import CorrFineTuner
 from models.estimator.correction import Corr, CorrConfig, CorrKernel
 from models.series import N_JOINTS
@@ -91,6 +102,10 @@ class AdaptationConfig(BaseModel):
                     "current weights, as a multiple of the mean diagonal of the hidden "
                     "features' Gram matrix [-]; 0 = no refit (module docstring)")
     seed: int = 0
+    body_wall: BodyWallTrackerConfig = Field(
+        default_factory=BodyWallTrackerConfig,
+        description="the body wall's stiffness tracking and the carry-over at an announced "
+                    "set-up change")
 
 
 @dataclass
@@ -109,11 +124,15 @@ class RoundResult:
     #: the accepted net's serving kernel, built where the round ran (the adaptation worker),
     #: so the process that serves swaps a reference instead of building a module
     kernel: CorrKernel | None = None
+    #: the body wall's stiffness [N/m] per segment between announced set-up changes, as the
+    #: tracker estimates it (None: no bin yet); one entry until a change is announced
+    body_wall: list[float | None] = field(default_factory=list)
 
     def summary(self) -> dict[str, Any]:
         return {"t": self.t, "accepted": self.accepted, "version": self.version,
                 "val_before": self.val_before, "val_after": self.val_after,
-                "n_train": self.n_train, "n_holdout": self.n_holdout, "eager": self.eager}
+                "n_train": self.n_train, "n_holdout": self.n_holdout, "eager": self.eager,
+                "body_wall_n_per_m": self.body_wall}
 
 
 @dataclass
@@ -133,16 +152,21 @@ class _Ring:
         self.dirty = np.zeros(self.capacity, dtype=bool)
         self.inp = self.target = np.zeros((0, 0), dtype=np.float32)
         self._scaling: tuple | None = None
+        # beside each row: its sample time [s] (NaN: unknown) and the stiffness change [N/m]
+        # its measured torques were carried over by
+        self.stamp = np.full(self.capacity, np.nan)
+        self.shift = np.zeros(self.capacity)
 
-    def push(self, row: np.ndarray) -> None:
-        self.rows[self.head] = row
-        self.dirty[self.head] = True
+    def push(self, row: np.ndarray, stamp: float = np.nan, shift: float = 0.0) -> None:
+        self.put(self.head, row, stamp, shift)
         self.head = (self.head + 1) % self.capacity
         self.n = min(self.n + 1, self.capacity)
 
-    def put(self, k: int, row: np.ndarray) -> None:
+    def put(self, k: int, row: np.ndarray, stamp: float = np.nan, shift: float = 0.0) -> None:
         self.rows[k] = row
         self.dirty[k] = True
+        self.stamp[k] = stamp
+        self.shift[k] = shift
 
     def data(self) -> np.ndarray:
         return self.rows[:self.n]
@@ -284,33 +308,99 @@ class Adapter:
         self._next_round: float | None = None
         self.rounds = 0
         self.accepted = 0
+        self.body_wall = BodyWallTracker(c.body_wall)
+        self._carried_segment = 0           # the latest segment the buffer was carried into
 
     # -- data ---------------------------------------------------------------------------
-    def add(self, windows: np.ndarray, step1: np.ndarray, measured: np.ndarray) -> None:
-        """Offer free-motion samples: (n, W, 12) windows, (n, 6) step-1 and measured torques."""
+    def add(self, windows: np.ndarray, step1: np.ndarray, measured: np.ndarray,
+            t: np.ndarray | None = None) -> None:
+        """Offer free-motion samples: (n, W, 12) windows, (n, 6) step-1 and measured torques,
+        and their sample times (n,) [s] (None: unknown; such samples are never carried over)."""
         windows = np.asarray(windows, dtype=np.float32).reshape(len(step1), -1)
         self.add_rows(np.concatenate([windows, np.asarray(step1, np.float32),
-                                      np.asarray(measured, np.float32)], axis=1))
+                                      np.asarray(measured, np.float32)], axis=1), t)
 
-    def add_rows(self, rows: np.ndarray) -> None:
+    def add_rows(self, rows: np.ndarray, t: np.ndarray | None = None) -> None:
         """:meth:`add` of (n, W * 12 + 12) float32 rows: flat window, step-1, measured."""
-        for row in rows:
+        stamps = (np.full(len(rows), np.nan) if t is None
+                  else np.asarray(t, dtype=np.float64).reshape(-1))
+        if len(stamps) != len(rows):
+            raise ValueError(f"{len(rows)} rows but {len(stamps)} times")
+        if self.config.body_wall.enabled and len(rows):
+            self._track(rows, stamps)
+        for row, stamp in zip(rows, stamps):
             self.seen += 1
             if self.seen % self.config.holdout_every == 0:
-                self._holdout.push(row)
+                self._holdout.push(row, stamp)
                 continue
-            if self.recent.n == self.recent.capacity and self.config.reservoir_size > 0:
-                self._to_reservoir(self.recent.rows[self.recent.head].copy())
-            self.recent.push(row)
+            recent = self.recent
+            if recent.n == recent.capacity and self.config.reservoir_size > 0:
+                k = recent.head
+                self._to_reservoir(recent.rows[k].copy(), recent.stamp[k], recent.shift[k])
+            recent.push(row, stamp)
 
-    def _to_reservoir(self, row: np.ndarray) -> None:
+    def _to_reservoir(self, row: np.ndarray, stamp: float = np.nan, shift: float = 0.0) -> None:
         self._evicted += 1
         if self.reservoir.n < self.reservoir.capacity:
-            self.reservoir.push(row)
+            self.reservoir.push(row, stamp, shift)
             return
         k = int(self._rng.integers(0, self._evicted))        # reservoir sampling
         if k < self.reservoir.capacity:
-            self.reservoir.put(k, row)
+            self.reservoir.put(k, row, stamp, shift)
+
+    def _positions(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Positions and velocities (n, 6) of rows: the newest sample of their window."""
+        last = (self.config.window - 1) * 12
+        return rows[:, last:last + N_JOINTS], rows[:, last + N_JOINTS:last + 2 * N_JOINTS]
+
+    def _track(self, rows: np.ndarray, stamps: np.ndarray) -> None:
+        """The body wall tracker's share of offered rows: their step-1 residual on the wall's
+        joints."""
+        k = self.config.window * 12
+        cols = list(WALL_JOINTS)
+        residual = rows[:, k + N_JOINTS:][:, cols] - rows[:, k:k + N_JOINTS][:, cols]
+        self.body_wall.add(stamps, *self._positions(rows), residual)
+
+    def on_setup_change(self, t: float, now: float | None = None) -> None:
+        """The set-up changed at sample time ``t`` [s] (announced, e.g. the insufflator's
+        pressure): adapt eagerly from ``now`` (the rounds' clock; default ``t``) and carry the
+        buffer over to the new set-up (module docstring). The held-out set is kept: it is
+        carried over too."""
+        self.body_wall.announce(t)
+        now = t if now is None else now
+        self._eager_until = now + self.config.eager_s
+        self._next_round = now
+
+    def _carry_over(self, t: float) -> int:
+        """Bring every buffered row's measured yaw and pitch torques to the latest segment's
+        body wall stiffness (what the tracker knows now); the number of rows changed. The
+        first carry-over into a segment (its first bin closed, ~``bin_s`` after the change)
+        makes the rounds eager again from ``t`` (the rounds' clock): the eager rounds before it
+        trained on a buffer that still mixed the two set-ups."""
+        if not self.config.body_wall.enabled or not self.body_wall.starts:
+            return 0
+        k = self.config.window * 12 + N_JOINTS
+        changed = 0
+        for ring in (self.recent, self.reservoir, self._holdout):
+            if not ring.n:
+                continue
+            want = self.body_wall.carry_over(ring.stamp[:ring.n])
+            idx = np.flatnonzero(np.abs(want - ring.shift[:ring.n]) > 1e-9)
+            if not len(idx):
+                continue
+            q, dq = self._positions(ring.rows[idx])
+            g, _ = wall_regressors(q, dq, self.config.body_wall.incision_m)
+            delta = (want[idx] - ring.shift[idx])[:, None] * g
+            for j, col in enumerate(WALL_JOINTS):
+                ring.rows[idx, k + col] += delta[:, j].astype(np.float32)
+            ring.shift[idx] = want[idx]
+            ring.dirty[idx] = True
+            changed += len(idx)
+        latest = len(self.body_wall.starts)
+        if changed and self._carried_segment < latest:
+            self._carried_segment = latest
+            self._eager_until = max(self._eager_until, t + self.config.eager_s)
+        return changed
 
     def on_drift(self, t: float) -> None:
         """The set-up changed at ``t`` [s]: adapt eagerly, forget the old regime's samples."""
@@ -460,6 +550,7 @@ class Adapter:
             x, s, _ = self._split(rows)
             self.corr = zero_corr(self.corr_config, x.numpy(), s.numpy(), self.config.seed,
                                   self.normalisation)
+        self._carry_over(t)
         scaling = self._round_scaling()
         for ring in (self.recent, self.reservoir, self._holdout):
             ring.normalise(scaling, self._net_rows)
@@ -479,9 +570,10 @@ class Adapter:
             self._refit_output(tuner)
         self.rounds += 1
         n_train = self.recent.n + self.reservoir.n
+        wall = [self.body_wall.stiffness(i) for i in range(len(self.body_wall.starts) + 1)]
         if not n_holdout:
             return RoundResult(t, False, self.version, float("nan"), float("nan"), n_train, 0,
-                               eager)
+                               eager, body_wall=wall)
         after = _rmse_mean(tuner.forward(h_inp), h_target)
         accepted = after < before * (1.0 - c.min_improvement)
         candidate = None
@@ -492,5 +584,6 @@ class Adapter:
             self.version += 1
             self.accepted += 1
         state = candidate.state_arrays() if accepted else None
+        kernel = CorrKernel.from_state(state, self.corr.window) if accepted else None
         return RoundResult(t, accepted, self.version, before, after, n_train, n_holdout, eager,
-                           state, CorrKernel.from_state(state, self.corr.window) if accepted else None)
+                           state, kernel, wall)

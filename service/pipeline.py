@@ -207,6 +207,7 @@ class Counters:
     calibration_samples: int = 0   # samples estimated during the calibration
     calibration_contact: int = 0   # of those, the calibration guard called contact
     drifts: int = 0
+    setup_changes: int = 0     # announced set-up changes taken
     rounds: int = 0
     swaps: int = 0
     error_kinds: dict[str, int] = field(default_factory=dict)
@@ -215,8 +216,10 @@ class Counters:
 class AdaptationBackend(Protocol):
     """Where offered samples go and accepted models come from."""
 
-    def offer(self, windows: np.ndarray, step1: np.ndarray, measured: np.ndarray) -> None: ...
+    def offer(self, windows: np.ndarray, step1: np.ndarray, measured: np.ndarray,
+              t: np.ndarray | None = None) -> None: ...
     def drift(self, t: float) -> None: ...
+    def setup_change(self, t: float) -> None: ...
     def tick(self, t: float) -> list[RoundResult]: ...
     def reset(self, t: float) -> None: ...
     def close(self) -> None: ...
@@ -230,11 +233,14 @@ class InlineAdaptation:
         self.config, self.normalisation = config, normalisation
         self.adapter = Adapter(config, normalisation=normalisation)
 
-    def offer(self, windows, step1, measured) -> None:
-        self.adapter.add(windows, step1, measured)
+    def offer(self, windows, step1, measured, t=None) -> None:
+        self.adapter.add(windows, step1, measured, t)
 
     def drift(self, t: float) -> None:
         self.adapter.on_drift(t)
+
+    def setup_change(self, t: float) -> None:
+        self.adapter.on_setup_change(t)
 
     def tick(self, t: float) -> list[RoundResult]:
         result = self.adapter.round(t)
@@ -297,6 +303,8 @@ class ArmPipeline:
         self._next_reset: float | None = None
         self._calibration_end: float | None = None
         self._was_contact = False
+        self._last_setup: dict[str, Any] | None = None
+        self.body_wall: list[float | None] = []    # stiffness per segment, the last round's
 
     def _calibration_guard(self, free_space: FreeSpaceModel) -> FreeMotionGate | None:
         """The calibration's contact check, or None (off, no calibration, no known scale)."""
@@ -566,9 +574,10 @@ class ArmPipeline:
             return
         if self.policy == "ungated" or (calibrating and not self._guard_refuses):
             self.counters.offered += 1
-            self.backend.offer(out.window[None], out.step1_torque[None], effort[None])
+            stamps = np.array([t])
+            self.backend.offer(out.window[None], out.step1_torque[None], effort[None], stamps)
             if self.on_offer is not None:
-                self.on_offer(np.array([t]))
+                self.on_offer(stamps)
             return
         if not free:
             self._drop_onset(contact_started)
@@ -580,17 +589,19 @@ class ArmPipeline:
         while self._pending and t - self._pending[0][0] >= delay:
             ready.append(self._pending.popleft())
         if len(ready) == 1:                  # the usual case: one in, one out; no copies
-            _, window, step1, measured = ready[0]
+            t_ready, window, step1, measured = ready[0]
             self.counters.offered += 1
-            self.backend.offer(window[None], step1[None], measured[None])
+            stamps = np.array([t_ready])
+            self.backend.offer(window[None], step1[None], measured[None], stamps)
             if self.on_offer is not None:
-                self.on_offer(np.array([ready[0][0]]))
+                self.on_offer(stamps)
         elif ready:
             self.counters.offered += len(ready)
+            stamps = np.array([r[0] for r in ready])
             self.backend.offer(np.stack([r[1] for r in ready]), np.stack([r[2] for r in ready]),
-                               np.stack([r[3] for r in ready]))
+                               np.stack([r[3] for r in ready]), stamps)
             if self.on_offer is not None:
-                self.on_offer(np.array([r[0] for r in ready]))
+                self.on_offer(stamps)
 
     def _drop_onset(self, contact_started: int) -> None:
         """Drop the waiting samples that may belong to the contact the gate is in: from
@@ -630,9 +641,41 @@ class ArmPipeline:
                                                         "serving_version": self.model_version}))
         return events
 
+    def refuse_setup(self, t: float, reason: str) -> Event:
+        """Count and describe a set-up change notice that could not be read."""
+        return self._error(t, "setup", reason)
+
+    def setup_change(self, t: float | None = None, detail: dict[str, Any] | None = None
+                     ) -> list[Event]:
+        """An announced set-up change (the insufflator's pressure set differently, a port
+        moved) at sample time ``t`` [s] (None: the last estimated sample's): adaptation gets
+        eager as after a drift, and the adapter carries its buffer over to the new set-up
+        (:meth:`service.adaptation.Adapter.on_setup_change`). ``detail`` (JSON values) goes
+        into the ``setup_change`` event. A time that is not finite is refused with an error
+        event."""
+        detail = dict(detail or {})
+        last = self._times[-1] if self._times else None
+        if t is None:
+            if last is None:
+                return [self.refuse_setup(0.0, "a set-up change before the first sample "
+                                               "needs its time")]
+            t = last
+        if not math.isfinite(t):
+            return [self.refuse_setup(last if last is not None else 0.0,
+                                      f"set-up change time {t!r} is not finite")]
+        self.counters.setup_changes += 1
+        self._adapt_until = t + self.config.adaptation.eager_s
+        if self.backend is not None:
+            self.backend.setup_change(t)
+        self._last_setup = {"t": t, **detail}
+        return [Event(t, "setup_change", {"arm": self.arm, **detail,
+                                          "carry_over": self.backend is not None
+                                          and self.config.adaptation.body_wall.enabled})]
+
     def apply(self, result: RoundResult) -> list[Event]:
         """Apply one round's outcome (swap the ``Corr`` if accepted); its events."""
         self.counters.rounds += 1
+        self.body_wall = list(result.body_wall)
         events = [Event(result.t, "round", {"arm": self.arm, **{
             k: v for k, v in result.summary().items() if k != "t"}})]
         if result.accepted and result.state_dict is not None:
@@ -658,6 +701,7 @@ class ArmPipeline:
                          "error_kinds": dict(c.error_kinds), "gaps": c.gaps,
                          "dropped": c.dropped, "offered": c.offered,
                          "discarded_onsets": c.discarded_onsets, "drifts": c.drifts,
+                         "setup_changes": c.setup_changes,
                          "rounds": c.rounds, "swaps": c.swaps,
                          "calibration_samples": c.calibration_samples,
                          "calibration_contact": c.calibration_contact},
@@ -668,6 +712,8 @@ class ArmPipeline:
                      "std": std.tolist()},
             "drift": {"detections": self.drift.detections,
                       "last_t": self.drift.last_detection_t},
+            "setup": self._last_setup,
+            "body_wall": {"stiffness_n_per_m": self.body_wall},
         }
 
     def close(self) -> None:

@@ -30,7 +30,7 @@ from __future__ import annotations
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 import numpy as np
 import torch
@@ -307,7 +307,8 @@ def _accepted(pipeline: ArmPipeline, js, valid: np.ndarray | None = None) -> np.
 def replay(session: Session, free_space: FreeSpaceModel, config: PipelineConfig | None = None,
            *, policy: str = "", batched: bool = True, arm: str = "PSM1", block: int = 256,
            step1: str = "torch", adaptation: str = "worker", result_delay_s: float = 1.0,
-           pipeline_hook: Callable[[ArmPipeline], None] | None = None) -> ReplayResult:
+           pipeline_hook: Callable[[ArmPipeline], None] | None = None,
+           setup_changes: Sequence[tuple[float, dict[str, Any]]] = ()) -> ReplayResult:
     """Run ``session`` through a fresh :class:`ArmPipeline` in simulated time.
 
     Args:
@@ -323,6 +324,9 @@ def replay(session: Session, free_space: FreeSpaceModel, config: PipelineConfig 
             its sample, serving from the next one.
         result_delay_s: see ``adaptation`` [s].
         pipeline_hook: called with the pipeline before the first sample (tests, tracing).
+        setup_changes: set-up changes to announce, ``(time [s], detail)`` each, as the daemon's
+            ``setup`` key would (:meth:`ArmPipeline.setup_change`): each before the first
+            sample at or after its time (:func:`service.replay_source.announced_changes`).
     Returns:
         the :class:`ReplayResult`.
     """
@@ -338,7 +342,7 @@ def replay(session: Session, free_space: FreeSpaceModel, config: PipelineConfig 
     pipeline = ArmPipeline(arm, free_space, config, backend)
     try:
         return _run(pipeline, session, msgs, config, policy, batched, block, step1,
-                    pipeline_hook, adaptation, result_delay_s)
+                    pipeline_hook, adaptation, result_delay_s, setup_changes)
     finally:
         if isinstance(pipeline.estimator, BatchedEstimator):
             pipeline.estimator.close()
@@ -347,7 +351,8 @@ def replay(session: Session, free_space: FreeSpaceModel, config: PipelineConfig 
 
 def _run(pipeline: ArmPipeline, session: Session, msgs, config: PipelineConfig, policy: str,
          batched: bool, block: int, step1: str, pipeline_hook, adaptation: str,
-         result_delay_s: float) -> ReplayResult:
+         result_delay_s: float, setup_changes: Sequence[tuple[float, dict[str, Any]]] = ()
+         ) -> ReplayResult:
     offered: list[np.ndarray] = []
     pipeline.on_offer = offered.append
     start = time.perf_counter()
@@ -395,7 +400,13 @@ def _run(pipeline: ArmPipeline, session: Session, msgs, config: PipelineConfig, 
         rows.clear()
 
     process = pipeline.process
+    changes = sorted(setup_changes, key=lambda c: c[0])
+    next_ns = round(changes[0][0] * 1e9) if changes else None
     for i, (msg, ok) in enumerate(zip(msgs, checked)):
+        while next_ns is not None and msg.stamp_ns >= next_ns:
+            t_change, detail = changes.pop(0)
+            events.extend(pipeline.setup_change(t_change, detail))
+            next_ns = round(changes[0][0] * 1e9) if changes else None
         est, evs = process(msg, ok)
         if evs:
             events.extend(evs)
@@ -418,4 +429,6 @@ def _run(pipeline: ArmPipeline, session: Session, msgs, config: PipelineConfig, 
         meta={"batched": batched, "step1": step1 if batched else "stream",
               "adaptation": adaptation, "result_delay_s": result_delay_s,
               "rounds_waited": getattr(pipeline.backend, "rounds_waited", None),
+              "setup_changes": [[float(t), d] for t, d in sorted(setup_changes,
+                                                                 key=lambda c: c[0])],
               "source": session.metadata.get("source")})

@@ -50,7 +50,11 @@ def load_session(spec: str) -> Session:
         from adapters.mcap_session import read_session
 
         session = read_session(spec)
-        return Session(session.joint_states, session.truth, {**session.metadata, "source": spec})
+        meta = {**session.metadata, "source": spec}
+        logged = logged_setup_changes(spec)
+        if logged:
+            meta["setup_changes"] = logged
+        return Session(session.joint_states, session.truth, meta)
     if suffix == ".csv":
         from adapters.csv_psm import read_psm_csv
 
@@ -92,3 +96,42 @@ def drift_onsets(session: Session) -> list[tuple[str, float, float | None]]:
         out.append((str(spec.get("id") or params.get("target")), float(start),
                     None if end is None else float(end)))
     return sorted(out, key=lambda d: d[1])
+
+
+def announced_changes(session: Session) -> list[tuple[float, dict]]:
+    """The set-up changes a replay of ``session`` can announce to the pipeline, as the
+    daemon's ``setup`` key would have (``(time [s], detail)``, oldest first): a simulated
+    session's drift effects (their start; :func:`drift_onsets`), or the ``setup_change``
+    events a daemon logged (``session.metadata["setup_changes"]``, see
+    :func:`logged_setup_changes`)."""
+    logged = session.metadata.get("setup_changes")
+    if logged:
+        return sorted(((float(t), dict(d)) for t, d in logged), key=lambda c: c[0])
+    return [(start, {"id": name, "source": "scenario"})
+            for name, start, _ in drift_onsets(session)]
+
+
+def logged_setup_changes(path: str) -> list[tuple[float, dict]]:
+    """The ``setup_change`` events of a daemon log (MCAP, ``/wrenchd/events``): their sample
+    time [s] and detail. Files without that topic give an empty list."""
+    import orjson
+    from mcap.exceptions import McapError
+    from mcap.reader import NonSeekingReader
+
+    from adapters.mcap_log import TOPIC_EVENTS
+
+    out = []
+    with open(path, "rb") as f:
+        # read in order, to the end or to where a crashed daemon's file stops
+        try:
+            for _, _, message in NonSeekingReader(f).iter_messages(topics=[TOPIC_EVENTS]):
+                try:
+                    event = orjson.loads(message.data)
+                except orjson.JSONDecodeError:
+                    continue
+                if isinstance(event, dict) and event.get("kind") == "setup_change":
+                    detail = {k: v for k, v in event.items() if k not in ("t", "kind")}
+                    out.append((float(event["t"]), detail))
+        except (McapError, EOFError, ValueError):
+            pass
+    return out

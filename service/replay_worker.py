@@ -8,8 +8,9 @@ where the worker's result arrives some time after the round began, a round's res
 from ``result_delay_s`` of *simulated* time after the sample it fell due at.
 
 Deterministic: the pipeline sends the worker, in order, exactly the calls the inline backend
-would make (``offer``, ``drift``, ``tick``, ``reset``), in chunks of :data:`CHUNK_S` of
-sample time (the offered rows stacked in one float32 array; per other call its kind, time
+would make (``offer``, ``drift``, ``setup_change``, ``tick``, ``reset``), in chunks of
+:data:`CHUNK_S` of sample time (the offered rows stacked in one float32 array with their
+sample times beside; per other call its kind, time
 and the number of rows offered before it); the worker replays them on its Adapter and
 answers with each round as soon as it is done (stamped with its simulated time) and, per
 chunk, how far it has come. The pipeline applies a round at the first sample at or after ``t + result_delay_s``,
@@ -34,7 +35,7 @@ CHUNK_S = 0.25          # the pipeline sends its calls at least every this much 
 
 # The calls of a chunk, packed: the offered rows stacked in one float32 array, and per other
 # call (tick, drift, reset) its kind, time and how many of the rows were offered before it.
-OFFER_ROWS, TICK, DRIFT, RESET = 0, 1, 2, 3
+OFFER_ROWS, TICK, DRIFT, RESET, SETUP = 0, 1, 2, 3, 4
 
 
 def _serve(conn, config: dict[str, Any], normalisation: dict[str, np.ndarray] | None) -> None:
@@ -47,12 +48,12 @@ def _serve(conn, config: dict[str, Any], normalisation: dict[str, np.ndarray] | 
             chunk = conn.recv()
             if chunk is None:
                 return
-            rows, kinds, times, counts, tail = chunk
+            rows, stamps, kinds, times, counts, tail = chunk
             done = -np.inf
             a = 0
             for kind, t, count in zip(kinds, times, counts):
                 if count:               # the rows offered before this call, in one add
-                    adapter.add_rows(rows[a:a + count])
+                    adapter.add_rows(rows[a:a + count], stamps[a:a + count])
                     a += count
                 if kind == TICK:
                     result = adapter.round(t)
@@ -61,10 +62,12 @@ def _serve(conn, config: dict[str, Any], normalisation: dict[str, np.ndarray] | 
                         conn.send(("round", done, [result]))
                 elif kind == DRIFT:
                     adapter.on_drift(t)
+                elif kind == SETUP:
+                    adapter.on_setup_change(t)
                 elif kind == RESET:
                     adapter = Adapter(adapter.config, normalisation=adapter.normalisation)
             if tail:
-                adapter.add_rows(rows[a:a + tail])
+                adapter.add_rows(rows[a:a + tail], stamps[a:a + tail])
             conn.send(("chunk", done, []))
     except Exception:  # noqa: BLE001 - reported to the pipeline, which raises it
         conn.send(("error", traceback.format_exc(limit=8), []))
@@ -102,7 +105,7 @@ class WorkerAdaptation:
         self._window_cols = k                   # row layout: window, step-1, measured
         # the offered arrays of this chunk, kept as given (the pipeline never changes an
         # array it has offered) and packed into one float32 array when the chunk is sent
-        self._offered: tuple[list[np.ndarray], ...] = ([], [], [])
+        self._offered: tuple[list[np.ndarray], ...] = ([], [], [], [])   # ..., sample times
         self._n_rows = 0                        # rows offered in this chunk
         self._pending = 0                       # of which offered since the last call
         self._kinds: list[int] = []
@@ -120,28 +123,33 @@ class WorkerAdaptation:
         self.idle_work: Callable[[], bool] | None = None
 
     # -- the pipeline's calls -----------------------------------------------------------
-    def offer(self, windows, step1, measured) -> None:
+    def offer(self, windows, step1, measured, t=None) -> None:
         n = len(step1)
-        w, s, m = self._offered
+        if t is None:                       # unknown times: never carried over
+            t = np.full(n, np.nan)
+        w, s, m, stamps = self._offered
         w.append(windows)
         s.append(step1)
         m.append(measured)
+        stamps.append(t)
         self._n_rows += n
         self._pending += n
 
-    def _packed_rows(self) -> np.ndarray:
+    def _packed_rows(self) -> tuple[np.ndarray, np.ndarray]:
         """This chunk's offered rows, ``[window, step-1, measured]`` per row, cast to float32
-        as :meth:`Adapter.add` casts (element by element: the same numbers as row by row)."""
-        w, s, m = self._offered
+        as :meth:`Adapter.add` casts (element by element: the same numbers as row by row),
+        and their sample times (float64)."""
+        w, s, m, t = self._offered
         k, n = self._window_cols, self._n_rows
         rows = np.empty((n, k + 2 * N_JOINTS), dtype=np.float32)
+        stamps = np.concatenate(t).astype(np.float64) if n else np.empty(0)
         if n:
             rows[:, :k] = np.concatenate(w).reshape(n, k)
             rows[:, k:k + N_JOINTS] = np.concatenate(s)
             rows[:, k + N_JOINTS:] = np.concatenate(m)
         for part in self._offered:
             part.clear()
-        return rows
+        return rows, stamps
 
     def _call(self, kind: int, t: float) -> None:
         self._kinds.append(kind)
@@ -151,6 +159,9 @@ class WorkerAdaptation:
 
     def drift(self, t: float) -> None:
         self._call(DRIFT, t)
+
+    def setup_change(self, t: float) -> None:
+        self._call(SETUP, t)
 
     def reset(self, t: float) -> None:
         self._call(RESET, t)
@@ -196,7 +207,7 @@ class WorkerAdaptation:
     # -- plumbing -----------------------------------------------------------------------
     def _send(self) -> None:
         if self._kinds or self._n_rows:
-            self._conn.send((self._packed_rows(), self._kinds, self._times, self._counts,
+            self._conn.send((*self._packed_rows(), self._kinds, self._times, self._counts,
                              self._pending))
             self._n_rows = self._pending = 0
             self._kinds, self._times, self._counts = [], [], []

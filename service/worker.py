@@ -84,6 +84,8 @@ def _run(inbox: mp.Queue, outbox: mp.Queue, configs: dict[str, dict[str, Any]],
                 adapters[arm].add(*payload)
             elif kind == "drift":
                 adapters[arm].on_drift(now)
+            elif kind == "setup":                  # payload: the change's sample time [s]
+                adapters[arm].on_setup_change(payload, now)
             elif kind == "reset":
                 adapters[arm] = Adapter(adapters[arm].config,
                                         normalisation=adapters[arm].normalisation)
@@ -170,19 +172,21 @@ class WorkerProcess:
 
 
 class _Rows:
-    """float32 rows appended a few at a time into storage that grows by doubling, so that
-    handing them over costs one copy, not a concatenation of hundreds of small arrays on the
-    estimation thread (measured ~0.7 ms every ``_BATCH_S``, a sample's whole latency budget)."""
+    """Rows (float32 unless told) appended a few at a time into storage that grows by
+    doubling, so that handing them over costs one copy, not a concatenation of hundreds of
+    small arrays on the estimation thread (measured ~0.7 ms every ``_BATCH_S``, a sample's
+    whole latency budget)."""
 
-    def __init__(self) -> None:
+    def __init__(self, dtype=np.float32) -> None:
         self._data: np.ndarray | None = None
         self._n = 0
+        self._dtype = dtype
 
     def append(self, rows) -> None:
-        rows = np.asarray(rows, np.float32)
+        rows = np.asarray(rows, self._dtype)
         k = len(rows)
         if self._data is None or self._n + k > len(self._data):
-            grown = np.empty((max(256, 2 * (self._n + k)), *rows.shape[1:]), np.float32)
+            grown = np.empty((max(256, 2 * (self._n + k)), *rows.shape[1:]), self._dtype)
             if self._data is not None:
                 grown[:self._n] = self._data[:self._n]
             self._data = grown
@@ -194,7 +198,8 @@ class _Rows:
 
     def take(self) -> np.ndarray:
         """The rows appended since the last take (a copy); empties the buffer."""
-        out = self._data[:self._n].copy() if self._data is not None else np.empty(0, np.float32)
+        out = (self._data[:self._n].copy() if self._data is not None
+               else np.empty(0, self._dtype))
         self._n = 0
         return out
 
@@ -204,13 +209,16 @@ class ProcessAdaptation:
 
     def __init__(self, worker: WorkerProcess, arm: str) -> None:
         self.worker, self.arm = worker, arm
-        self._batch = (_Rows(), _Rows(), _Rows())       # windows, step-1 and measured torques
+        # windows, step-1 and measured torques, sample times (float64: stamps since 1970)
+        self._batch = (_Rows(), _Rows(), _Rows(), _Rows(np.float64))
         self._sent_at = self._polled_at = time.monotonic()
         self.errors: list[str] = []
         self._dead_reported = False
 
-    def offer(self, windows, step1, measured) -> None:
-        for rows, part in zip(self._batch, (windows, step1, measured)):
+    def offer(self, windows, step1, measured, t=None) -> None:
+        if t is None:                       # unknown times: never carried over
+            t = np.full(len(step1), np.nan)
+        for rows, part in zip(self._batch, (windows, step1, measured, t)):
             rows.append(part)
 
     def _send_batch(self) -> None:
@@ -221,6 +229,10 @@ class ProcessAdaptation:
     def drift(self, t: float) -> None:
         self._send_batch()
         self.worker.send("drift", self.arm)
+
+    def setup_change(self, t: float) -> None:
+        self._send_batch()                  # the samples before it first
+        self.worker.send("setup", self.arm, float(t))
 
     def reset(self, t: float) -> None:
         for rows in self._batch:

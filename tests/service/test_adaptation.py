@@ -173,3 +173,84 @@ def test_refit_off_is_adam_alone_to_the_bit():
     for k, v in want.state_dict().items():
         assert torch.equal(adapter.corr.state_dict()[k], v), k
         np.testing.assert_allclose(huge.corr.state_dict()[k].numpy(), v.numpy(), atol=1e-6)
+
+
+def wall_samples(t: np.ndarray, pressure: np.ndarray, seed: int = 0):
+    """Samples whose measured yaw and pitch torques hold the body wall at ``pressure`` (the
+    simulator's effect): windows whose newest row is (q, dq) of a yaw/pitch sweep."""
+    from models.physics.effects.base import Motion
+    from models.physics.effects.body_wall import BodyWall
+
+    rng = np.random.default_rng(seed)
+    n = len(t)
+    q = np.zeros((n, 6))
+    dq = np.zeros((n, 6))
+    q[:, 0] = 0.5 * np.sin(2 * np.pi * 0.13 * t)
+    q[:, 1] = 0.4 * np.sin(2 * np.pi * 0.08 * t + 0.3)
+    dq[:, 0] = 0.5 * 2 * np.pi * 0.13 * np.cos(2 * np.pi * 0.13 * t)
+    dq[:, 1] = 0.4 * 2 * np.pi * 0.08 * np.cos(2 * np.pi * 0.08 * t + 0.3)
+    x = np.concatenate([q, dq], axis=1)
+    windows = np.repeat(x[:, None, :], 10, axis=1)
+    step1 = rng.normal(0, 0.2, (n, 6))
+    m = Motion(t, q, dq, np.zeros_like(q), None)
+    wall = np.stack([BodyWall().torque(m.slice(slice(i, i + 1)), {"pressure_mmhg": p})[0]
+                     for i, p in enumerate(pressure)])
+    return windows, step1, step1 + wall, q, dq
+
+
+def test_announced_change_carries_the_buffer_over():
+    """Samples at 12 mmHg, then an announced step to 20 mmHg: once the new segment has a
+    bin, every buffered sample from before the change has its yaw and pitch targets moved by
+    (k_after - k_before) g(q) (within the tracker's estimate), later ones are untouched, and
+    the other joints never change."""
+    from models.body_wall_tracker import wall_regressors
+
+    rate = 100.0
+    t = np.arange(0, 90.0, 1 / rate)
+    pressure = np.where(t < 60.0, 12.0, 20.0)
+    windows, step1, measured, q, dq = wall_samples(t, pressure)
+    config = AdaptationConfig(min_train_samples=100, round_steps=2, recent_size=2000,
+                              reservoir_size=2000)
+    adapter = Adapter(config)
+    before = t < 60.0
+    adapter.add(windows[before], step1[before], measured[before], t[before])
+    adapter.on_setup_change(60.0)
+    adapter.add(windows[~before], step1[~before], measured[~before], t[~before])
+    original = {}
+    for ring in (adapter.recent, adapter.reservoir, adapter._holdout):
+        original[id(ring)] = ring.rows[:ring.n].copy()
+    adapter.round(90.0)
+    k_then, k_now = adapter.body_wall.stiffness(0), adapter.body_wall.stiffness(1)
+    assert abs(k_then - 580.0) < 10.0 and abs(k_now - 900.0) < 15.0
+    kcol = 10 * 12 + 6
+    moved = 0
+    for ring in (adapter.recent, adapter.reservoir, adapter._holdout):
+        n = ring.n
+        diff = ring.rows[:n].astype(float) - original[id(ring)].astype(float)
+        old = ring.stamp[:n] < 60.0
+        g, _ = wall_regressors(*adapter._positions(original[id(ring)]),
+                               config.body_wall.incision_m)
+        np.testing.assert_allclose(diff[old][:, kcol:kcol + 2], (k_now - k_then) * g[old],
+                                   atol=1e-4)
+        assert not diff[~old].any()
+        assert not diff[:, :kcol].any() and not diff[:, kcol + 2:].any()
+        assert (ring.shift[:n][old] == k_now - k_then).all()
+        moved += int(old.sum())
+    assert moved > 1000
+
+
+def test_no_announcement_no_carry_over_and_unknown_times_stay():
+    rate = 100.0
+    t = np.arange(0, 40.0, 1 / rate)
+    windows, step1, measured, *_ = wall_samples(t, np.full(len(t), 12.0))
+    adapter = Adapter(AdaptationConfig(min_train_samples=100, round_steps=2))
+    adapter.add(windows, step1, measured, t)
+    adapter.add(windows[:500], step1[:500], measured[:500])          # no times
+    rows = adapter.recent.rows[:adapter.recent.n].copy()
+    adapter.round(40.0)
+    assert (adapter.recent.rows[:adapter.recent.n] == rows).all()
+    adapter.on_setup_change(40.0)
+    adapter.add(windows[:1500], step1[:1500], measured[:1500], t[:1500] + 40.0)
+    adapter.round(60.0)
+    unknown = np.isnan(adapter.recent.stamp[:adapter.recent.n])
+    assert unknown.sum() == 400 and (adapter.recent.shift[:adapter.recent.n][unknown] == 0).all()

@@ -195,3 +195,27 @@ def test_samples_waiting_from_before_a_contacts_onset_margin_are_offered_after_i
     margin = (js.t >= onset - 0.45) & (js.t < 14.0)
     assert not np.isin(js.t[margin], offered).any()
     assert p.counters.discarded_onsets < 0.6 * 200          # ~0.5 s at 200 Hz dropped
+
+
+def test_setup_change_makes_an_event_reaches_the_adapter_and_refuses_bad_times(seal, trocar):
+    p = ArmPipeline("PSM1", seal, PipelineConfig())
+    events = p.setup_change(None, {"note": "early"})
+    assert [(e.kind, e.detail["error"]) for e in events] == [("error", "setup")]
+    for i in range(50):
+        p.process(msg(trocar, i))
+    events = p.setup_change(None, {"pressure_mmhg": 20.0})
+    assert [e.kind for e in events] == ["setup_change"]
+    assert events[0].t == pytest.approx(trocar.t[49])
+    assert events[0].detail == {"arm": "PSM1", "pressure_mmhg": 20.0, "carry_over": True}
+    events = p.setup_change(float(trocar.t[30]))
+    assert events[0].t == pytest.approx(trocar.t[30])
+    assert p.backend.adapter.body_wall.starts == pytest.approx([trocar.t[30], trocar.t[49]])
+    events = p.setup_change(float("inf"))
+    assert [(e.kind, e.detail["error"]) for e in events] == [("error", "setup")]
+    status = p.status()
+    assert status["counters"]["setup_changes"] == 2
+    assert status["counters"]["error_kinds"] == {"setup": 2}
+    assert status["setup"]["t"] == pytest.approx(trocar.t[30])
+    frozen = ArmPipeline("PSM1", seal, PipelineConfig(policy=PolicyConfig(name="frozen")))
+    frozen.process(msg(trocar, 0))
+    assert frozen.setup_change(None)[0].detail["carry_over"] is False
