@@ -322,3 +322,55 @@ def decode_wrench(encoding: str, payload: bytes) -> tuple[int, str, np.ndarray, 
 def finite_or_none(x: float) -> float | None:
     """A float for JSON, ``None`` where it is not finite."""
     return float(x) if math.isfinite(x) else None
+
+
+# -- set-up changes (wrenchd's own message, JSON only) ------------------------------------
+#: fields a set-up change may carry besides its stamp
+_SETUP_FIELDS = {"pressure_mmhg", "note"}
+
+
+def encode_setup_change(stamp_ns: int | None = None, pressure_mmhg: float | None = None,
+                        note: str | None = None) -> bytes:
+    """A ``setup`` message: the set-up changed at ``stamp_ns`` (None: "now", the arm's latest
+    sample), with the insufflation pressure [mmHg] and a note if known."""
+    body: dict[str, Any] = {}
+    if stamp_ns is not None:
+        sec, nanosec = _split_ns(int(stamp_ns))
+        body["stamp"] = {"sec": sec, "nanosec": nanosec}
+    if pressure_mmhg is not None:
+        body["pressure_mmhg"] = float(pressure_mmhg)
+    if note is not None:
+        body["note"] = str(note)
+    return orjson.dumps(body)
+
+
+def decode_setup_change(payload: bytes) -> tuple[int | None, dict[str, Any]]:
+    """A ``setup`` message -> (stamp [ns] or None, detail): a JSON object with an optional
+    ``stamp`` (``sec``, ``nanosec``), ``pressure_mmhg`` (a number in [0, 100]) and ``note``
+    (text, at most 200 characters); anything else is refused with :class:`DataError`."""
+    message = _json_object(payload, "set-up change")
+    unknown = set(message) - _SETUP_FIELDS - {"stamp"}
+    if unknown:
+        raise DataError(f"set-up change: unknown field(s) {sorted(unknown)[:5]}; expected "
+                        f"'stamp', 'pressure_mmhg', 'note'")
+    stamp_ns = None
+    if "stamp" in message:
+        try:
+            stamp_ns, _ = _header({"header": {"stamp": message["stamp"]}})
+        except DataError as exc:             # the same rules as a header's stamp
+            raise DataError("set-up change: " + str(exc).replace("header.stamp", "stamp")
+                            .replace("missing object 'stamp'",
+                                     "'stamp' must be an object {sec, nanosec}")) from None
+    detail: dict[str, Any] = {}
+    if "pressure_mmhg" in message:
+        p = message["pressure_mmhg"]
+        if isinstance(p, bool) or not isinstance(p, (int, float)) or not 0.0 <= p <= 100.0:
+            raise DataError(f"set-up change: pressure_mmhg must be a number in [0, 100], "
+                            f"got {str(p)[:24]}")
+        detail["pressure_mmhg"] = float(p)
+    if "note" in message:
+        note = message["note"]
+        if not isinstance(note, str) or len(note) > 200:
+            raise DataError("set-up change: note must be text of at most 200 characters")
+        detail["note"] = note
+    return stamp_ns, detail

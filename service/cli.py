@@ -108,7 +108,7 @@ def _cmd_robot(args: argparse.Namespace) -> int:
     return serve_simulated(scenario=args.scenario, seed=args.seed, duration_s=args.duration,
                            out_dir=Path(args.out_dir), arm=args.arm, rate_hz=args.rate,
                            zenoh=zenoh, prefix=args.prefix, encoding=args.encoding,
-                           quiet=args.quiet)
+                           quiet=args.quiet, announce_setup=not args.no_announce)
 
 
 def _cmd_config(args: argparse.Namespace) -> int:
@@ -152,7 +152,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 #: parser whose ``func(args) -> int`` runs it.
 COMMAND_MODULES: list[str] = ["service.train_cmd", "service.reproduce_cmd", "service.real_data_cmd",
                               "service.discrepancy_cmd", "service.replay_cmd",
-                              "service.recovery_cmd"]
+                              "service.recovery_cmd", "service.announce"]
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -212,6 +212,8 @@ def build_parser() -> argparse.ArgumentParser:
     rob.add_argument("--connect", action="append", metavar="ENDPOINT",
                      help="zenoh endpoint to connect to (repeatable)")
     rob.add_argument("--quiet", action="store_true", help="no per-second progress lines")
+    rob.add_argument("--no-announce", action="store_true",
+                     help="do not announce the scenario's set-up changes on {prefix}/{arm}/setup")
     rob.set_defaults(func=_cmd_robot)
 
     ech = sub.add_parser("echo", help="subscribe to a daemon and print live estimates")

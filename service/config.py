@@ -43,6 +43,7 @@ class KeysConfig(BaseModel):
     events: str = "{prefix}/{arm}/wrenchd/events"
     status: str = "{prefix}/{arm}/wrenchd/status"
     alive: str = "{prefix}/{arm}/wrenchd/alive"
+    setup: str = "{prefix}/{arm}/setup"           # set-up changes in (robot side, like measured_js)
 
     @field_validator("*")
     @classmethod

@@ -42,7 +42,7 @@ import orjson
 
 from adapters.mcap_log import TOPIC_ESTIMATE, TOPIC_EVENTS, TOPIC_STATUS, McapLog
 from adapters.mcap_session import TOPIC_JOINT_STATES
-from adapters.messages import (decode_joint_state, encode_wrench,
+from adapters.messages import (decode_joint_state, decode_setup_change, encode_wrench,
                                prepare_encoding)
 from adapters.zenoh_io import open_session
 from models.errors import ConfigError, DataError
@@ -58,6 +58,7 @@ from service.worker import ProcessAdaptation, WorkerProcess
 SWITCH_INTERVAL_S = 2e-4
 LINK_CHECK_S = 0.5      # how often the session's routers and peers are counted [s]
 BATCH = 32              # samples of one arm estimated before the next arm's turn
+SETUP_INBOX = 64        # set-up change notices waiting at most per arm (the oldest go)
 
 
 def load_free_space(spec: str) -> FreeSpaceModel:
@@ -187,6 +188,10 @@ class ArmRuntime:
         self.pub_events = session.declare_publisher(self.keys["events"])
         self.queryable = session.declare_queryable(self.keys["status"], self._on_query)
         self.token = session.liveliness().declare_token(self.keys["alive"])
+        # set-up changes (JSON, any encoding): a few at most, handled on the estimation thread
+        self.setup_inbox: deque[bytes] = deque(maxlen=SETUP_INBOX)
+        self._wake = wake
+        self.sub_setup = session.declare_subscriber(self.keys["setup"], self._on_setup)
         self.sub = session.declare_subscriber(self.keys["measured_js"], self._on_sample)
         now = time.monotonic()
         self._next_status = now + settings.status_interval_s
@@ -204,6 +209,10 @@ class ArmRuntime:
     # -- zenoh callbacks (zenoh's threads): keep them trivial ----------------------------
     def _on_sample(self, sample) -> None:
         self.ring.put((time.perf_counter_ns(), sample.payload.to_bytes()))
+
+    def _on_setup(self, sample) -> None:
+        self.setup_inbox.append(sample.payload.to_bytes())
+        self._wake.set()
 
     def _on_query(self, query) -> None:
         try:
@@ -249,6 +258,27 @@ class ArmRuntime:
                                                         "payload_bytes": len(payload),
                                                         "payload_head": payload[:64].hex()})])
             return None
+
+    def handle_setup(self) -> None:
+        """Announced set-up changes received so far: decoded, validated and given to the
+        pipeline (its ``setup_change`` event, or an ``error`` event naming what was wrong)."""
+        while self.setup_inbox:
+            payload = self.setup_inbox.popleft()
+            try:
+                stamp_ns, detail = decode_setup_change(payload)
+            except DataError as exc:
+                ev = self.pipeline.refuse_setup(time.time(), str(exc))
+                self._publish_events([Event(ev.t, ev.kind, {
+                    **ev.detail, "payload_bytes": len(payload),
+                    "payload_head": payload[:64].hex()})])
+                continue
+            try:
+                events = self.pipeline.setup_change(
+                    None if stamp_ns is None else stamp_ns / 1e9, detail)
+            except Exception as exc:  # noqa: BLE001 - never let a notice kill the arm
+                self.internal_error(exc)
+                continue
+            self._publish_events(events)
 
     def handle(self, arrived_ns: int, payload: bytes) -> None:
         """One payload through decode -> pipeline -> publish -> log."""
@@ -352,7 +382,8 @@ class ArmRuntime:
 
     def close(self) -> None:
         """Undeclare in a safe order (the thread must have stopped)."""
-        for entity in (self.sub, self.queryable, self.token, self.pub_wrench, self.pub_events):
+        for entity in (self.sub, self.sub_setup, self.queryable, self.token, self.pub_wrench,
+                       self.pub_events):
             try:
                 entity.undeclare()
             except Exception:  # noqa: BLE001 - closing must go on
@@ -501,6 +532,9 @@ class Daemon:
             stopping = self.stop.is_set()
             self.wake.wait(0.05)
             self.wake.clear()
+            for arm in arms:
+                if arm.setup_inbox:               # before the samples that came after them
+                    arm.handle_setup()
             queued = [(arm, arm.ring.drain()) for arm in arms]
             depth = max((len(items) for _, items in queued), default=0)
             # arms take turns, at most BATCH samples each (samples that arrive meanwhile set

@@ -20,15 +20,16 @@ from pathlib import Path
 from adapters.mcap_session import SessionWriter
 from adapters.sim.scenarios import run_scenario
 from adapters.sim.simulator import SimulatorConfig
-from adapters.messages import encode_joint_state, stamp_ns_of
+from adapters.messages import encode_joint_state, encode_setup_change, stamp_ns_of
 from adapters.zenoh_io import ZenohConfig, open_session
+from service.replay_source import drift_onsets
 
 BLOCK_S = 120.0
 CONTACT_FREE_START_S = 60.0     # the daemon's default calibration_s
 MATCH_TIMEOUT_S = 5.0           # wait this long for a subscriber before the first sample
 
 
-def _wait_for_subscriber(publisher, timeout_s: float) -> bool:
+def wait_for_subscriber(publisher, timeout_s: float) -> bool:
     """Wait until zenoh reports a matching subscriber (the daemon's route is in place), so
     the first samples are not published into the void; gives up after ``timeout_s``."""
     deadline = time.monotonic() + timeout_s
@@ -42,8 +43,14 @@ def _wait_for_subscriber(publisher, timeout_s: float) -> bool:
 def serve_simulated(scenario: str, seed: int, duration_s: float | None, out_dir: Path,
                     arm: str = "PSM1", rate_hz: float = 200.0,
                     zenoh: ZenohConfig | None = None, prefix: str = "dvrk",
-                    encoding: str = "json", quiet: bool = False) -> int:
-    """Stream ``scenario`` in real time until ``duration_s`` or SIGINT/SIGTERM. Returns 0."""
+                    encoding: str = "json", quiet: bool = False,
+                    announce_setup: bool = True) -> int:
+    """Stream ``scenario`` in real time until ``duration_s`` or SIGINT/SIGTERM. Returns 0.
+
+    With ``announce_setup``, the set-up changes the scenario makes (an insufflation step, a
+    ramp's start; and each new block, which starts the scenario's set-up afresh, when it has
+    any) are announced on ``{prefix}/{arm}/setup`` as they happen, as an insufflator or the
+    OR's console connected to the daemon would."""
     stop = {"flag": False}
 
     def _stop(signum, _frame):
@@ -57,6 +64,7 @@ def serve_simulated(scenario: str, seed: int, duration_s: float | None, out_dir:
     published = 0
     try:
         publisher = session.declare_publisher(key)
+        setup_pub = session.declare_publisher(f"{prefix}/{arm}/setup") if announce_setup else None
         with SessionWriter(path, metadata={
                 "source": "wrenchd serve (simulated PSM)", "arm": arm,
                 "scenario": {"name": scenario, "seed": seed, "block_s": BLOCK_S}}) as writer:
@@ -72,8 +80,12 @@ def serve_simulated(scenario: str, seed: int, duration_s: float | None, out_dir:
                                    contact_free_s=CONTACT_FREE_START_S if block == 0 else None)
                 js = dataclasses.replace(sim.joint_states, t=sim.joint_states.t + offset)
                 truth = sim.truth
+                changes = ([(offset + start_s, name) for name, start_s, _ in drift_onsets(sim)]
+                           if setup_pub is not None else [])
+                if changes and block > 0:
+                    changes.insert(0, (offset, "new block"))
                 if t0_wall is None:                     # the clock starts with the first sample
-                    _wait_for_subscriber(publisher, MATCH_TIMEOUT_S)
+                    wait_for_subscriber(publisher, MATCH_TIMEOUT_S)
                     print(f"wrenchd: simulated {arm} ({scenario}) publishing on '{key}' at "
                           f"{rate_hz:g} Hz, recording to {path}", flush=True)
                     t0_wall = time.monotonic()
@@ -84,6 +96,9 @@ def serve_simulated(scenario: str, seed: int, duration_s: float | None, out_dir:
                         time.sleep(delay)
                     if stop["flag"]:
                         break
+                    while changes and js.t[i] >= changes[0][0]:
+                        t_change, what = changes.pop(0)
+                        setup_pub.put(encode_setup_change(stamp_ns_of(t_change), note=what))
                     publisher.put(encode_joint_state(encoding, stamp_ns_of(js.t[i]), js.names,
                                                      js.position[i], js.velocity[i],
                                                      js.effort[i]))
@@ -100,6 +115,8 @@ def serve_simulated(scenario: str, seed: int, duration_s: float | None, out_dir:
                 offset += length
                 block += 1
         publisher.undeclare()
+        if setup_pub is not None:
+            setup_pub.undeclare()
     finally:
         session.close()
         for s, handler in old.items():

@@ -70,3 +70,28 @@ def test_bad_cdr_and_unknown_encoding_are_refused():
         decode_joint_state("cdr", b"\x00\x01\x00\x00\xff")
     with pytest.raises(ConfigError):
         decode_joint_state("xml", b"")
+
+
+def test_setup_change_round_trip_and_refusals():
+    from adapters.messages import decode_setup_change, encode_setup_change
+
+    assert decode_setup_change(encode_setup_change()) == (None, {})
+    stamp, detail = decode_setup_change(encode_setup_change(88_500_000_000, 20, "insufflation"))
+    assert stamp == 88_500_000_000
+    assert detail == {"pressure_mmhg": 20.0, "note": "insufflation"}
+    assert json.loads(encode_setup_change(3_000_000_007)) == {"stamp": {"sec": 3, "nanosec": 7}}
+    for payload, reason in [
+            (b"not json", "not JSON"),
+            (b"[1]", "JSON object"),
+            (b'{"pressure": 20}', "unknown field"),
+            (b'{"pressure_mmhg": "high"}', "pressure_mmhg"),
+            (b'{"pressure_mmhg": -1}', "pressure_mmhg"),
+            (b'{"pressure_mmhg": NaN}', "pressure_mmhg"),
+            (b'{"pressure_mmhg": true}', "pressure_mmhg"),
+            (b'{"stamp": {"sec": -1, "nanosec": 0}}', "sec"),
+            (b'{"stamp": {"sec": 1.5, "nanosec": 0}}', "integers"),
+            (b'{"stamp": 5}', "'stamp' must be an object"),
+            (b'{"note": 5}', "note"),
+            (json.dumps({"note": "x" * 201}).encode(), "note")]:
+        with pytest.raises(DataError, match=reason):
+            decode_setup_change(payload)

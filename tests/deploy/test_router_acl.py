@@ -108,7 +108,8 @@ def test_only_the_daemon_and_the_robot_publish_their_keys(pki):
         subs = [sessions[cn].declare_subscriber(key, seen(cn)) for cn, key in (
             ("haptics", "dvrk/*/wrenchd/**"), ("haptics", "dvrk/*/measured_js"),
             ("wrenchd-psm1", "dvrk/PSM1/measured_js"), ("intruder", "dvrk/*/wrenchd/**"),
-            ("intruder", "dvrk/*/measured_js"))]
+            ("intruder", "dvrk/*/measured_js"), ("haptics", "dvrk/*/setup"),
+            ("wrenchd-psm1", "dvrk/PSM1/setup"))]
         time.sleep(1.0)
         attempts = [
             ("wrenchd-psm1", "dvrk/PSM1/wrenchd/measured_cf", True),
@@ -120,6 +121,11 @@ def test_only_the_daemon_and_the_robot_publish_their_keys(pki):
             ("wrenchd-psm1", "dvrk/PSM1/measured_js", False),
             ("wrenchd-psm1", "dvrk/PSM2/wrenchd/measured_cf", False),
             ("haptics", "dvrk/PSM1/wrenchd/measured_cf", False),
+            # set-up changes come from the robot's side, like its joint states
+            ("dvrk-psm1", "dvrk/PSM1/setup", True),
+            ("intruder", "dvrk/PSM1/setup", False),
+            ("wrenchd-psm1", "dvrk/PSM1/setup", False),
+            ("dvrk-psm1", "dvrk/PSM2/setup", False),
         ]
         for i, (cn, key, _) in enumerate(attempts):
             for _ in range(3):
@@ -137,4 +143,5 @@ def test_only_the_daemon_and_the_robot_publish_their_keys(pki):
         assert (str(i) in delivered) == allowed, (cn, key, allowed, sorted(got))
     # the daemon hears its robot; the intruder hears nothing (its subscriptions are denied)
     assert ("wrenchd-psm1", "dvrk/PSM1/measured_js", "2:dvrk-psm1") in got
+    assert ("wrenchd-psm1", "dvrk/PSM1/setup", "9:dvrk-psm1") in got
     assert not [g for g in got if g[0] == "intruder" and not g[2].endswith(":intruder")]

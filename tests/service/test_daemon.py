@@ -20,7 +20,7 @@ import pytest
 
 from adapters.mcap_log import TOPIC_ESTIMATE, TOPIC_EVENTS
 from adapters.mcap_session import TOPIC_JOINT_STATES, read_session_report
-from adapters.messages import decode_wrench, encode_joint_state
+from adapters.messages import decode_wrench, encode_joint_state, encode_setup_change
 from adapters.zenoh_io import ZenohConfig, open_session
 
 
@@ -120,7 +120,13 @@ def test_daemon_end_to_end(tmp_path, encoding):
                                      [float("nan")] * 6, [0.0] * 6)
         pub.put(bad)
         pub.undeclare()
-        wait_for(lambda: sum(e["kind"] == "error" for e in events) >= 2, 10.0, "error events")
+        # a set-up change notice (JSON whatever the arm's encoding), and a malformed one
+        setup = session.declare_publisher("dvrk/PSM2/setup")
+        setup.put(encode_setup_change(None, 20.0, "pressure up"))
+        setup.put(b'{"pressure": 20}')
+        setup.undeclare()
+        wait_for(lambda: sum(e["kind"] == "error" for e in events) >= 3
+                 and any(e["kind"] == "setup_change" for e in events), 10.0, "error events")
         replies = list(session.get("dvrk/PSM2/wrenchd/status", timeout=5.0))
         status = json.loads(replies[0].ok.payload.to_bytes())
         sub_w.undeclare()
@@ -143,13 +149,20 @@ def test_daemon_end_to_end(tmp_path, encoding):
         assert all("free" in w[3] and "model_version" in w[3] for w in wrenches)
     # the status answers with the counters
     assert status["counters"]["estimated"] == published
-    assert status["counters"]["errors"] == 2
-    assert status["counters"]["error_kinds"] == {"decode": 1, "invalid": 1}
+    assert status["counters"]["errors"] == 3
+    assert status["counters"]["error_kinds"] == {"decode": 1, "invalid": 1, "setup": 1}
+    assert status["counters"]["setup_changes"] == 1
+    assert status["setup"]["pressure_mmhg"] == 20.0
     assert status["counters"]["dropped"] == 0
     assert status["latency_us"]["p99"] is not None
     assert status["encoding"] == encoding
     kinds = [e.get("error") for e in events if e["kind"] == "error"]
-    assert sorted(kinds) == ["decode", "invalid"]
+    assert sorted(kinds) == ["decode", "invalid", "setup"]
+    change = next(e for e in events if e["kind"] == "setup_change")
+    # "now": the last estimated sample's time
+    assert change["t"] == pytest.approx(wrenches[-1][0] / 1e9)
+    assert change["pressure_mmhg"] == 20.0 and change["note"] == "pressure up"
+    assert change["carry_over"] is True
     # the MCAP log: a finished file holding every input, estimate and the error events,
     # readable as a session (replayable)
     logs = sorted((tmp_path / "logs").glob("PSM2-*.mcap"))
@@ -161,8 +174,13 @@ def test_daemon_end_to_end(tmp_path, encoding):
     assert len(topics[TOPIC_ESTIMATE]) == published
     assert len(topics[TOPIC_JOINT_STATES]) == published
     logged_events = [json.loads(m) for m in topics[TOPIC_EVENTS]]
-    assert sorted(e["error"] for e in logged_events if e["kind"] == "error") == ["decode",
-                                                                               "invalid"]
+    assert sorted(e["error"] for e in logged_events if e["kind"] == "error") == [
+        "decode", "invalid", "setup"]
+    # a replay of the log can announce what the daemon was told
+    from service.replay_source import logged_setup_changes
+
+    assert logged_setup_changes(str(logs[0])) == [(change["t"], {
+        "arm": "PSM2", "pressure_mmhg": 20.0, "note": "pressure up", "carry_over": True})]
     estimate = json.loads(topics[TOPIC_ESTIMATE][-1])
     last = wrenches[-1][2]
     np.testing.assert_allclose([estimate["wrench"]["force"][a] for a in "xyz"], last[:3],

@@ -32,6 +32,10 @@ def test_echo_prints_live_wrenches_events_and_status(tmp_path):
         assert robot.returncode == 0, robot.stderr
         out, err = echo.communicate(timeout=60)
         assert echo.returncode == 0, err
+        # wrenchd announce: a set-up change notice the daemon takes (status shows it)
+        told = subprocess.run([*CLI, "announce", "--arm", "PSM2", "--connect", endpoint,
+                               "--pressure", "18", "--note", "pressure up"],
+                              capture_output=True, text=True, timeout=60)
         status = subprocess.run([*CLI, "echo", "--arm", "PSM2", "--connect", endpoint,
                                  "--status", "--timeout", "10"], capture_output=True, text=True,
                                 timeout=60)
@@ -51,6 +55,10 @@ def test_echo_prints_live_wrenches_events_and_status(tmp_path):
     assert status.returncode == 0, status.stderr
     answer = json.loads(status.stdout)
     assert answer["counters"]["estimated"] >= 40 and answer["arm"] == "PSM2"
+    assert told.returncode == 0, told.stderr
+    assert "sent" in told.stdout and "dvrk/PSM2/setup" in told.stdout
+    assert answer["counters"]["setup_changes"] == 1
+    assert answer["setup"]["pressure_mmhg"] == 18.0 and answer["setup"]["note"] == "pressure up"
 
 
 def test_echo_says_when_no_daemon_answers():
@@ -62,3 +70,14 @@ def test_echo_says_when_no_daemon_answers():
     quiet = subprocess.run([*CLI, "echo", "--connect", endpoint, "--timeout", "1"],
                            capture_output=True, text=True, timeout=60)
     assert quiet.returncode == 1 and "wrenchd echo: 0 wrenches" in quiet.stdout
+
+
+def test_announce_says_when_no_daemon_listens_and_refuses_bad_values():
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    told = subprocess.run([*CLI, "announce", "--connect", endpoint, "--timeout", "1"],
+                          capture_output=True, text=True, timeout=60)
+    assert told.returncode == 1
+    assert "no daemon subscribed to 'dvrk/PSM1/setup'" in told.stdout
+    bad = subprocess.run([*CLI, "announce", "--pressure", "250"], capture_output=True,
+                         text=True, timeout=60)
+    assert bad.returncode != 0 and "--pressure must be in [0, 100]" in bad.stderr + bad.stdout

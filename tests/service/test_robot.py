@@ -58,3 +58,43 @@ def test_robot_streams_joint_states_and_records_them(tmp_path):
     last = received[-1]
     idx = np.argmin(np.abs(session_file.joint_states.t - stamps[-1]))
     np.testing.assert_allclose(session_file.joint_states.effort[idx], last["effort"], rtol=1e-9)
+
+
+def run_robot_listening(tmp_path, *extra):
+    """A 4 s insufflation-change robot (its pressure step at 1.6 s); what arrived on the joint
+    state and set-up keys."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "service.cli", "robot", "--scenario", "insufflation-change",
+         "--duration", "4", "--listen", endpoint, "--out-dir", str(tmp_path), "--quiet",
+         *extra], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    states, setups = [], []
+    session = None
+    try:
+        session = open_session(ZenohConfig(connect=[endpoint]))
+        subs = [session.declare_subscriber("dvrk/PSM1/setup",
+                                           lambda s: setups.append(s.payload.to_bytes())),
+                session.declare_subscriber("dvrk/PSM1/measured_js",
+                                           lambda s: states.append(1))]
+        out, err = proc.communicate(timeout=60)
+        for sub in subs:
+            sub.undeclare()
+    finally:
+        if session is not None:
+            session.close()
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, err
+    return states, setups
+
+
+def test_robot_announces_its_scenarios_set_up_changes(tmp_path):
+    from adapters.messages import decode_setup_change
+
+    states, setups = run_robot_listening(tmp_path)
+    assert len(states) > 500
+    assert len(setups) == 1
+    stamp_ns, detail = decode_setup_change(setups[0])
+    assert stamp_ns == 1_600_000_000 and detail == {"note": "insufflation_step"}
+    states, setups = run_robot_listening(tmp_path, "--no-announce")
+    assert len(states) > 500 and setups == []
