@@ -20,11 +20,18 @@ With ``--bins SECONDS`` each row also gives the free-motion error per bin from t
 the end (``post_bins_n``; with ``--settled`` the settled replay's, ``settled_bins_n``, and
 their ratio, ``excess_bins``): how the gap evolves, where the post window is one point of it.
 
+With ``--announce`` the step is announced to the pipeline at its time, as the daemon's
+``setup`` key would be told by the insufflator or the OR console
+(:meth:`service.pipeline.ArmPipeline.setup_change`): adaptation gets eager and the adapter
+carries its buffer over to the new body wall stiffness
+(:mod:`models.body_wall_tracker`).
+
 Example::
 
     wrenchd recovery --seeds 3,4,5 --set '{}' --set '{"adaptation": {"refit_shrink": 0}}'
     wrenchd recovery --seeds 3,4 --settled
     wrenchd recovery --seeds 3,4 --settled --bins 20 --duration 600
+    wrenchd recovery --seeds 3,4,5,6,7,8 --settled --announce
 """
 
 from __future__ import annotations
@@ -67,7 +74,7 @@ def _rounded(values) -> list[float | None]:
 
 def run_recovery(seeds: list[int], settings: list[str], duration_s: float = 220.0,
                  model: str = "seal", progress=print, settled: bool = False,
-                 bin_s: float | None = None) -> dict:
+                 bin_s: float | None = None, announce: bool = False) -> dict:
     """The measure for every seed and setting (see the module docstring)."""
     import numpy as np
 
@@ -75,6 +82,7 @@ def run_recovery(seeds: list[int], settings: list[str], duration_s: float = 220.
     from service.daemon import load_free_space
     from service.replay import replay
     from service.replay_metrics import free_error_series, recovery_levels
+    from service.replay_source import announced_changes
     from service.threads import one_compute_thread
 
     one_compute_thread()
@@ -90,7 +98,8 @@ def run_recovery(seeds: list[int], settings: list[str], duration_s: float = 220.
     for text, config in configs:
         for seed, session in sessions.items():
             t0 = time.perf_counter()
-            r = replay(session, free_space, config, step1="torch")
+            r = replay(session, free_space, config, step1="torch",
+                       setup_changes=announced_changes(session) if announce else ())
             try:
                 pre, post = recovery_levels(r, session, change_s)
             except ValueError as exc:
@@ -108,6 +117,7 @@ def run_recovery(seeds: list[int], settings: list[str], duration_s: float = 220.
                    # training (the gate calls some of it contact once the residual grew)
                    "free_offered_after": round(float(offered[after].mean()), 4),
                    "drifts": r.status["counters"]["drifts"],
+                   "setup_changes": r.status["counters"]["setup_changes"],
                    "seconds": round(time.perf_counter() - t0, 1)}
             line = (f"{text} seed {seed}: pre {pre:.3f} N, post {post:.3f} N, ratio "
                     f"{post / pre:.3f}, contact samples offered {row['contact_offered']} of "
@@ -154,6 +164,7 @@ def run_recovery(seeds: list[int], settings: list[str], duration_s: float = 220.
             summary[-1].update(mean_excess=round(float(np.mean(excess)), 4),
                                worst_excess=max(excess))
     return {"scenario": SCENARIO, "duration_s": duration_s, "change_s": change_s,
+            "announced": announce,
             "target_ratio": TARGET_RATIO, "rows": rows, "summary": summary}
 
 
@@ -165,7 +176,7 @@ def _cmd(args: argparse.Namespace) -> int:
     if not seeds:
         raise ConfigError("--seeds names no seed")
     result = run_recovery(seeds, args.set, args.duration, args.model, settled=args.settled,
-                          bin_s=args.bins)
+                          bin_s=args.bins, announce=args.announce)
     for s in result["summary"]:
         line = (f"{s['set']}: mean ratio {s['mean_ratio']:.3f}, {s['within_target']} of "
                 f"{s['seeds']} seeds within {TARGET_RATIO}, worst {s['worst_ratio']:.3f}, "
@@ -193,5 +204,8 @@ def register(sub) -> None:
     p.add_argument("--bins", type=float, metavar="SECONDS",
                    help="also give the free-motion error per bin of this length from the "
                         "change to the end (with --settled: over the settled replay's)")
+    p.add_argument("--announce", action="store_true",
+                   help="announce the pressure step to the pipeline, as the daemon's setup "
+                        "key would (the adapter then carries its buffer over)")
     p.add_argument("--json", help="also write the rows and summary to this file")
     p.set_defaults(func=_cmd)

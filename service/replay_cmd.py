@@ -57,13 +57,14 @@ def _cmd_replay(args: argparse.Namespace) -> int:
     from service.replay import replay
     from service.replay_metrics import metrics_markdown, replay_metrics
     from service.replay_output import _finite, write_replay_mcap
-    from service.replay_source import load_session
+    from service.replay_source import announced_changes, load_session
 
     config = get_policy(args.policy).configure(load_pipeline_config(args.config, args.seed))
     session = load_session(args.session)
     r = replay(session, load_free_space(args.model), config, policy=args.policy,
                batched=not args.streaming, adaptation=args.adaptation,
-               result_delay_s=args.result_delay)
+               result_delay_s=args.result_delay,
+               setup_changes=announced_changes(session) if args.announce else ())
     if args.output:
         Path(args.output).parent.mkdir(parents=True, exist_ok=True)
         write_replay_mcap(args.output, r, {"model": args.model})
@@ -150,6 +151,10 @@ def register(sub) -> None:
                          help="replay a session through the daemon's pipeline, with metrics")
     rep.add_argument("session", help="file.mcap, file.csv or sim:SCENARIO:DURATION[:SEED]")
     rep.add_argument("--policy", default="gated", choices=policy_names())
+    rep.add_argument("--announce", action="store_true",
+                     help="announce the session's set-up changes to the pipeline as the "
+                          "daemon's setup key would: a scenario's (its drift steps) or, for "
+                          "a daemon log, the notices it logged")
     rep.add_argument("-o", "--output", help="write estimates and events to this MCAP")
     rep.add_argument("--report", help="directory for metrics.json and metrics.md")
     rep.add_argument("--streaming", action="store_true",
