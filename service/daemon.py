@@ -190,6 +190,7 @@ class ArmRuntime:
         self.token = session.liveliness().declare_token(self.keys["alive"])
         # set-up changes (JSON, any encoding): a few at most, handled on the estimation thread
         self.setup_inbox: deque[bytes] = deque(maxlen=SETUP_INBOX)
+        self.setup_dropped = 0          # notices pushed out of a full inbox (counted, reported)
         self._wake = wake
         self.sub_setup = session.declare_subscriber(self.keys["setup"], self._on_setup)
         self.sub = session.declare_subscriber(self.keys["measured_js"], self._on_sample)
@@ -211,6 +212,8 @@ class ArmRuntime:
         self.ring.put((time.perf_counter_ns(), sample.payload.to_bytes()))
 
     def _on_setup(self, sample) -> None:
+        if len(self.setup_inbox) == SETUP_INBOX:
+            self.setup_dropped += 1
         self.setup_inbox.append(sample.payload.to_bytes())
         self._wake.set()
 
@@ -223,6 +226,7 @@ class ArmRuntime:
     def status(self) -> dict[str, Any]:
         s = self.pipeline.status()
         s["counters"]["dropped"] = self.ring.dropped
+        s["counters"]["setup_dropped"] = self.setup_dropped
         s["rate_hz"] = self.rate_hz
         s["latency_us"] = _percentiles(list(self.latency_us))
         s["encoding"] = self.cfg.encoding

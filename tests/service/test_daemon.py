@@ -152,6 +152,7 @@ def test_daemon_end_to_end(tmp_path, encoding):
     assert status["counters"]["errors"] == 3
     assert status["counters"]["error_kinds"] == {"decode": 1, "invalid": 1, "setup": 1}
     assert status["counters"]["setup_changes"] == 1
+    assert status["counters"]["setup_dropped"] == 0
     assert status["setup"]["pressure_mmhg"] == 20.0
     assert status["counters"]["dropped"] == 0
     assert status["latency_us"]["p99"] is not None
