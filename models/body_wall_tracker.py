@@ -96,6 +96,11 @@ class BodyWallTracker:
         self._pooled: dict[int, list[np.ndarray]] = {}       # segment -> [S (2, 2), r (2,)]
         self._latest = -math.inf
 
+    @property
+    def latest(self) -> float:
+        """The latest sample time added [s] (-inf before any)."""
+        return self._latest
+
     # -- input ---------------------------------------------------------------------------
     def segment_of(self, t: np.ndarray) -> np.ndarray:
         """Segment index of each sample time (N,); NaN times are in segment -1."""

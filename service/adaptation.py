@@ -355,11 +355,25 @@ class Adapter:
 
     def _track(self, rows: np.ndarray, stamps: np.ndarray) -> None:
         """The body wall tracker's share of offered rows: their step-1 residual on the wall's
-        joints."""
+        joints. Times that go back by more than two bins are a new timeline (the robot's clock
+        restarted: the pipeline's ``clock_reset``): see :meth:`_new_timeline`."""
+        finite = stamps[np.isfinite(stamps)]
+        if len(finite) and finite.min() < self.body_wall.latest - 2 * self.body_wall.config.bin_s:
+            self._new_timeline()
         k = self.config.window * 12
         cols = list(WALL_JOINTS)
         residual = rows[:, k + N_JOINTS:][:, cols] - rows[:, k:k + N_JOINTS][:, cols]
         self.body_wall.add(stamps, *self._positions(rows), residual)
+
+    def _new_timeline(self) -> None:
+        """Sample times restarted: the buffered rows stay as they were carried (the set-up did
+        not change with the clock), but their times mean nothing on the new timeline, so they
+        are never carried again; the tracker starts afresh."""
+        for ring in (self.recent, self.reservoir, self._holdout):
+            ring.stamp[:] = np.nan
+            ring.shift[:] = 0.0
+        self.body_wall = BodyWallTracker(self.config.body_wall)
+        self._carried_segment = 0
 
     def on_setup_change(self, t: float, now: float | None = None) -> None:
         """The set-up changed at sample time ``t`` [s] (announced, e.g. the insufflator's

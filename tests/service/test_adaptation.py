@@ -254,3 +254,34 @@ def test_no_announcement_no_carry_over_and_unknown_times_stay():
     adapter.round(60.0)
     unknown = np.isnan(adapter.recent.stamp[:adapter.recent.n])
     assert unknown.sum() == 400 and (adapter.recent.shift[:adapter.recent.n][unknown] == 0).all()
+
+
+def test_a_restarted_clock_keeps_what_was_carried_and_starts_the_tracker_afresh():
+    """The robot's clock restarts (the pipeline's clock_reset): rows carried before keep
+    their targets, are never carried again, and the new timeline's rows are not shifted by
+    the old timeline's segments."""
+    rate = 100.0
+    t = np.arange(0, 60.0, 1 / rate)
+    windows, step1, measured, *_ = wall_samples(t, np.where(t < 30.0, 12.0, 20.0))
+    adapter = Adapter(AdaptationConfig(min_train_samples=100, round_steps=2))
+    adapter.add(windows[t < 30.0], step1[t < 30.0], measured[t < 30.0], t[t < 30.0])
+    adapter.on_setup_change(30.0)
+    adapter.add(windows[t >= 30.0], step1[t >= 30.0], measured[t >= 30.0], t[t >= 30.0])
+    adapter.round(60.0)
+    n = adapter.recent.n
+    assert (adapter.recent.shift[:n] != 0).any()
+    carried = adapter.recent.rows[:n].copy()
+    # a new timeline from 0 s, at 20 mmHg
+    t2 = np.arange(0, 20.0, 1 / rate)
+    w2, s2, m2, *_ = wall_samples(t2, np.full(len(t2), 20.0), seed=1)
+    adapter.add(w2, s2, m2, t2)
+    assert adapter.body_wall.starts == [] and adapter.body_wall.latest < 20.0
+    adapter.round(80.0)
+    ring = adapter.recent
+    fresh = ~np.isnan(ring.stamp[:ring.n])
+    assert fresh.sum() == 1600 and (ring.shift[:ring.n] == 0).all()
+    kept = ~fresh
+    assert kept.sum() > 0
+    # the rows left from before the restart are exactly as they were carried
+    old_rows = {row.tobytes() for row in carried}
+    assert all(row.tobytes() in old_rows for row in ring.rows[:ring.n][kept])
