@@ -50,11 +50,7 @@ def load_session(spec: str) -> Session:
         from adapters.mcap_session import read_session
 
         session = read_session(spec)
-        meta = {**session.metadata, "source": spec}
-        logged = logged_setup_changes(spec)
-        if logged:
-            meta["setup_changes"] = logged
-        return Session(session.joint_states, session.truth, meta)
+        return Session(session.joint_states, session.truth, {**session.metadata, "source": spec})
     if suffix == ".csv":
         from adapters.csv_psm import read_psm_csv
 
@@ -100,13 +96,15 @@ def drift_onsets(session: Session) -> list[tuple[str, float, float | None]]:
 
 def announced_changes(session: Session) -> list[tuple[float, dict]]:
     """The set-up changes a replay of ``session`` can announce to the pipeline, as the
-    daemon's ``setup`` key would have (``(time [s], detail)``, oldest first): a simulated
-    session's drift effects (their start; :func:`drift_onsets`), or the ``setup_change``
-    events a daemon logged (``session.metadata["setup_changes"]``, see
-    :func:`logged_setup_changes`)."""
-    logged = session.metadata.get("setup_changes")
-    if logged:
-        return sorted(((float(t), dict(d)) for t, d in logged), key=lambda c: c[0])
+    daemon's ``setup`` key would have (``(time [s], detail)``, oldest first): the
+    ``setup_change`` events a daemon logged (a session loaded from a daemon's MCAP log, read
+    again here, only when asked: :func:`logged_setup_changes`), else a simulated session's
+    drift effects (their start; :func:`drift_onsets`)."""
+    source = str(session.metadata.get("source") or "")
+    if source.lower().endswith(".mcap") and Path(source).is_file():
+        logged = logged_setup_changes(source)
+        if logged:
+            return sorted(logged, key=lambda c: c[0])
     return [(start, {"id": name, "source": "scenario"})
             for name, start, _ in drift_onsets(session)]
 

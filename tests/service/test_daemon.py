@@ -178,10 +178,12 @@ def test_daemon_end_to_end(tmp_path, encoding):
     assert sorted(e["error"] for e in logged_events if e["kind"] == "error") == [
         "decode", "invalid", "setup"]
     # a replay of the log can announce what the daemon was told
-    from service.replay_source import logged_setup_changes
+    from service.replay_source import announced_changes, load_session, logged_setup_changes
 
-    assert logged_setup_changes(str(logs[0])) == [(change["t"], {
-        "arm": "PSM2", "pressure_mmhg": 20.0, "note": "pressure up", "carry_over": True})]
+    told = [(change["t"], {"arm": "PSM2", "pressure_mmhg": 20.0, "note": "pressure up",
+                           "carry_over": True})]
+    assert logged_setup_changes(str(logs[0])) == told
+    assert announced_changes(load_session(str(logs[0]))) == told
     estimate = json.loads(topics[TOPIC_ESTIMATE][-1])
     last = wrenches[-1][2]
     np.testing.assert_allclose([estimate["wrench"]["force"][a] for a in "xyz"], last[:3],
