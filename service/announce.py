@@ -18,8 +18,7 @@ import math
 import time
 
 from models.errors import ConfigError
-
-DEFAULT_CONNECT = "tcp/127.0.0.1:7447"
+from service.echo import DEFAULT_CONNECT
 
 
 def announce(args: argparse.Namespace) -> int:

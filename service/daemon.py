@@ -257,11 +257,14 @@ class ArmRuntime:
         try:
             return decode_joint_state(self.cfg.encoding, payload)
         except DataError as exc:
-            ev = self.pipeline.reject(time.time(), "decode", str(exc))
-            self._publish_events([Event(ev.t, ev.kind, {**ev.detail,
-                                                        "payload_bytes": len(payload),
-                                                        "payload_head": payload[:64].hex()})])
+            self._publish_refusal(self.pipeline.reject(time.time(), "decode", str(exc)),
+                                  payload)
             return None
+
+    def _publish_refusal(self, ev: Event, payload: bytes) -> None:
+        """Publish and log a refused payload's error event with its size and first bytes."""
+        self._publish_events([Event(ev.t, ev.kind, {**ev.detail, "payload_bytes": len(payload),
+                                                    "payload_head": payload[:64].hex()})])
 
     def handle_setup(self) -> None:
         """Announced set-up changes received so far: decoded, validated and given to the
@@ -271,10 +274,7 @@ class ArmRuntime:
             try:
                 stamp_ns, detail = decode_setup_change(payload)
             except DataError as exc:
-                ev = self.pipeline.refuse_setup(time.time(), str(exc))
-                self._publish_events([Event(ev.t, ev.kind, {
-                    **ev.detail, "payload_bytes": len(payload),
-                    "payload_head": payload[:64].hex()})])
+                self._publish_refusal(self.pipeline.refuse_setup(time.time(), str(exc)), payload)
                 continue
             try:
                 events = self.pipeline.setup_change(
