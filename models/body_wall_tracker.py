@@ -222,10 +222,6 @@ class BodyWallTracker:
                 out[seg == s] = k_now - k
         return out
 
-    def summary(self) -> dict:
-        """Segments (start [s], stiffness [N/m] or None, bins) for status and events."""
-        bounds = [-math.inf, *self.starts]
-        return {"segments": [{"start_s": b if math.isfinite(b) else None,
-                              "stiffness_n_per_m": self.stiffness(i),
-                              "bins": sum(1 for _, s, _, _ in self.bins if s == i)}
-                             for i, b in enumerate(bounds)]}
+    def stiffnesses(self) -> list[float | None]:
+        """:meth:`stiffness` of every segment, oldest first (one more than the changes)."""
+        return [self.stiffness(i) for i in range(len(self.starts) + 1)]

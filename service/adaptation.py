@@ -584,7 +584,7 @@ class Adapter:
             self._refit_output(tuner)
         self.rounds += 1
         n_train = self.recent.n + self.reservoir.n
-        wall = [self.body_wall.stiffness(i) for i in range(len(self.body_wall.starts) + 1)]
+        wall = self.body_wall.stiffnesses()
         if not n_holdout:
             return RoundResult(t, False, self.version, float("nan"), float("nan"), n_train, 0,
                                eager, body_wall=wall)

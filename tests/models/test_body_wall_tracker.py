@@ -60,8 +60,8 @@ def test_stiffness_step_across_an_announced_change():
     starts = [b for b, s, _, _ in tracker.bins if s == 1]
     assert starts[0] == 60.0 and all(b >= 60.0 for b in starts)
     assert (pressure[t >= 60.0] == 20.0).all()
-    summary = tracker.summary()["segments"]
-    assert [s["start_s"] for s in summary] == [None, 60.0]
+    assert tracker.starts == [60.0]
+    assert tracker.stiffnesses() == [tracker.stiffness(0), tracker.stiffness(1)]
 
 
 def test_nothing_is_carried_before_the_new_segment_has_a_bin():
