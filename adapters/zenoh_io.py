@@ -17,6 +17,7 @@ once, fail at once); a peer opens at once and connects when the other side appea
 from __future__ import annotations
 
 import json
+import time
 from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
@@ -81,3 +82,14 @@ def open_session(config: ZenohConfig):
         return zenoh.open(config.to_zenoh())
     except Exception as exc:  # zenoh.ZError and friends
         raise AdapterError(f"cannot open zenoh session ({config.model_dump()}): {exc}") from exc
+
+
+def wait_for_subscriber(publisher, timeout_s: float) -> bool:
+    """Wait until zenoh reports a matching subscriber (the daemon's route is in place), so
+    the first samples are not published into the void; gives up after ``timeout_s``."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if publisher.matching_status.matching:
+            return True
+        time.sleep(0.01)
+    return False

@@ -23,8 +23,7 @@ from service.echo import DEFAULT_CONNECT
 
 def announce(args: argparse.Namespace) -> int:
     from adapters.messages import encode_setup_change, stamp_ns_of
-    from adapters.zenoh_io import ZenohConfig, open_session
-    from service.stream import wait_for_subscriber
+    from adapters.zenoh_io import ZenohConfig, open_session, wait_for_subscriber
 
     if args.pressure is not None and not 0.0 <= args.pressure <= 100.0:
         raise ConfigError(f"--pressure must be in [0, 100] mmHg, got {args.pressure:g}")

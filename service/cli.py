@@ -25,6 +25,42 @@ from models.errors import WrenchdError
 DEFAULT_LISTEN = "tcp/127.0.0.1:7447"
 
 
+class LazyChoices:
+    """An argparse ``choices`` whose names are loaded on first use.
+
+    The scenario and policy registries live beside torch, pinocchio and scipy, which take
+    seconds to import. With these, building the parser imports none of them: ``wrenchd
+    announce`` and ``wrenchd echo`` start at once (an announcement's stamp is the arm's latest
+    sample when it arrives), and a command that names a scenario loads the registry when
+    argparse checks the name. Give the argument a ``metavar``: argparse formats one from the
+    choices when the argument is added, and list them in its help with ``%(choices)s``.
+    """
+
+    def __init__(self, load) -> None:
+        self._load = load
+        self._names: list[str] | None = None
+
+    def _get(self) -> list[str]:
+        if self._names is None:
+            self._names = list(self._load())
+        return self._names
+
+    def __contains__(self, name: object) -> bool:
+        return name in self._get()
+
+    def __iter__(self):
+        return iter(self._get())
+
+
+def _scenario_names() -> list[str]:
+    from adapters.sim.scenarios import SCENARIOS
+
+    return sorted(SCENARIOS)
+
+
+SCENARIO_CHOICES = LazyChoices(_scenario_names)
+
+
 def _cmd_simulate(args: argparse.Namespace) -> int:
     from adapters.mcap_session import write_session
     from adapters.sim.scenarios import run_scenario
@@ -158,14 +194,13 @@ COMMAND_MODULES: list[str] = ["service.train_cmd", "service.reproduce_cmd", "ser
 def build_parser() -> argparse.ArgumentParser:
     import importlib
 
-    from adapters.sim.scenarios import SCENARIOS
-
     parser = argparse.ArgumentParser(prog="wrenchd", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="command", required=True)
 
     sim = sub.add_parser("simulate", help="simulate a scenario into an MCAP session")
-    sim.add_argument("--scenario", required=True, choices=sorted(SCENARIOS))
+    sim.add_argument("--scenario", required=True, choices=SCENARIO_CHOICES, metavar="NAME",
+                     help="one of: %(choices)s")
     sim.add_argument("--duration", type=float, default=60.0, help="session length [s]")
     sim.add_argument("--seed", type=int, default=0)
     sim.add_argument("--model", help="physics model JSON replacing the scenario's physics")
@@ -186,8 +221,8 @@ def build_parser() -> argparse.ArgumentParser:
     srv.add_argument("--duration", type=float, default=None,
                      help="stop after this many seconds (default: until Ctrl-C)")
     srv.add_argument("--log-dir", help="MCAP log directory (default: sessions)")
-    srv.add_argument("--scenario", choices=sorted(SCENARIOS), default=None,
-                     help="scenario of the simulated PSM (robot = simulated)")
+    srv.add_argument("--scenario", choices=SCENARIO_CHOICES, default=None, metavar="NAME",
+                     help="scenario of the simulated PSM (robot = simulated): %(choices)s")
     srv.add_argument("--seed", type=int, default=None, help="seed of the simulated PSM")
     srv.set_defaults(func=_cmd_serve)
 
@@ -196,7 +231,8 @@ def build_parser() -> argparse.ArgumentParser:
     cfg.set_defaults(func=_cmd_config)
 
     rob = sub.add_parser("robot", help="stream the simulated PSM over zenoh and record its truth")
-    rob.add_argument("--scenario", default="trocar-contact", choices=sorted(SCENARIOS))
+    rob.add_argument("--scenario", default="trocar-contact", choices=SCENARIO_CHOICES,
+                     metavar="NAME", help="one of: %(choices)s (default %(default)s)")
     rob.add_argument("--seed", type=int, default=0)
     rob.add_argument("--duration", type=float, default=None,
                      help="stop after this many seconds (default: until Ctrl-C)")

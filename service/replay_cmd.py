@@ -138,8 +138,14 @@ def run_replay_bench(json_path: str | None, duration_s: float = 120.0,
     return result
 
 
-def register(sub) -> None:
+def _policy_names() -> list[str]:
     from service.policies import policy_names
+
+    return policy_names()
+
+
+def register(sub) -> None:
+    from service.cli import LazyChoices
 
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("--config", help="pipeline settings (TOML/JSON; a daemon file works)")
@@ -150,7 +156,8 @@ def register(sub) -> None:
     rep = sub.add_parser("replay", parents=[common],
                          help="replay a session through the daemon's pipeline, with metrics")
     rep.add_argument("session", help="file.mcap, file.csv or sim:SCENARIO:DURATION[:SEED]")
-    rep.add_argument("--policy", default="gated", choices=policy_names())
+    rep.add_argument("--policy", default="gated", choices=LazyChoices(_policy_names),
+                     metavar="NAME", help="adaptation policy: %(choices)s (default %(default)s)")
     rep.add_argument("--announce", action="store_true",
                      help="announce the session's set-up changes to the pipeline as the "
                           "daemon's setup key would: a scenario's (its drift steps) or, for "

@@ -18,8 +18,6 @@ import time
 from pathlib import Path
 from typing import Any
 
-from service.reproduction import AXES, CONFIGS, QUICK, TRAINED, ReproductionConfig
-
 PLOT = "force-rmse-vs-length.png"
 
 
@@ -38,6 +36,8 @@ def _f(x: float, digits: int = 3) -> str:
 def plot(results: dict[str, Any], path: Path) -> None:
     """Mean force RMSE against trocar training length, one line per configuration."""
     import matplotlib
+
+    from service.reproduction import CONFIGS
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -63,6 +63,8 @@ def plot(results: dict[str, Any], path: Path) -> None:
 
 def markdown(results: dict[str, Any], command: str, wall_s: float) -> str:
     """The report text (tables from ``results``; prose around them)."""
+    from service.reproduction import AXES, CONFIGS, TRAINED
+
     cfg = results["config"]
     lengths = [str(float(L)) for L in cfg["lengths_s"]]
     lhead = [f"{float(L):g} s" for L in cfg["lengths_s"]]
@@ -171,7 +173,7 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     import torch
 
     from models.estimator.pretrained import load_pretrained
-    from service.reproduction import run_reproduction
+    from service.reproduction import QUICK, ReproductionConfig, run_reproduction
 
     if args.threads:
         torch.set_num_threads(args.threads)

@@ -21,23 +21,12 @@ from adapters.mcap_session import SessionWriter
 from adapters.sim.scenarios import run_scenario
 from adapters.sim.simulator import SimulatorConfig
 from adapters.messages import encode_joint_state, encode_setup_change, stamp_ns_of
-from adapters.zenoh_io import ZenohConfig, open_session
+from adapters.zenoh_io import ZenohConfig, open_session, wait_for_subscriber
 from service.replay_source import drift_onsets
 
 BLOCK_S = 120.0
 CONTACT_FREE_START_S = 60.0     # the daemon's default calibration_s
 MATCH_TIMEOUT_S = 5.0           # wait this long for a subscriber before the first sample
-
-
-def wait_for_subscriber(publisher, timeout_s: float) -> bool:
-    """Wait until zenoh reports a matching subscriber (the daemon's route is in place), so
-    the first samples are not published into the void; gives up after ``timeout_s``."""
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if publisher.matching_status.matching:
-            return True
-        time.sleep(0.01)
-    return False
 
 
 def serve_simulated(scenario: str, seed: int, duration_s: float | None, out_dir: Path,

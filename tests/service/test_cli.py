@@ -16,6 +16,35 @@ def wrenchd(*args, check=True):
                           text=True, check=check, timeout=300)
 
 
+HEAVY = ("torch", "scipy", "river", "pinocchio", "matplotlib")
+
+
+def test_light_commands_start_without_the_heavy_imports():
+    """``--help``, ``announce`` and ``echo`` import none of torch, scipy, river, pinocchio: a
+    notice from ``wrenchd announce`` is placed at the arm's latest sample when it arrives, so
+    seconds of start-up would misplace it. Names of scenarios and policies load on use."""
+    probe = f"""
+import sys
+from service.cli import main
+for argv in (["announce", "--connect", "tcp/127.0.0.1:9", "--timeout", "0.1"],
+             ["echo", "--connect", "tcp/127.0.0.1:9", "--status", "--timeout", "0.1"]):
+    assert main(argv) == 1, argv
+print(sorted(m for m in {HEAVY!r} if m in sys.modules))
+"""
+    run = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
+                         timeout=120)
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.splitlines()[-1] == "[]"
+    # the lazy choices still list and check the names
+    help_ = wrenchd("robot", "--help").stdout
+    assert "insufflation-change" in help_ and "(default trocar-contact)" in help_
+    bad = wrenchd("simulate", "--scenario", "nope", "-o", "x.mcap", check=False)
+    assert bad.returncode == 2 and "invalid choice: 'nope'" in bad.stderr
+    assert "'trocar-contact'" in bad.stderr
+    bad = wrenchd("replay", "sim:trocar:5", "--policy", "nope", check=False)
+    assert bad.returncode == 2 and "'ungated'" in bad.stderr
+
+
 @pytest.mark.parametrize("scenario", SCENARIOS)
 def test_simulate_writes_an_mcap_any_reader_opens(tmp_path, scenario):
     out = tmp_path / f"{scenario}.mcap"
