@@ -47,6 +47,7 @@ SCENARIO = "insufflation-change"
 SETTLED_SCENARIO = "insufflation-high"     # the same seeds at the new pressure throughout
 CHANGE_FRACTION = 0.4                    # adapters/sim/scenarios.py: the step at 40 %
 TARGET_RATIO = 1.10
+SETTLE_S = 60.0                          # free motion after the change before "post" [s]
 
 
 def _settings(texts: list[str]):
@@ -76,6 +77,14 @@ def run_recovery(seeds: list[int], settings: list[str], duration_s: float = 220.
                  model: str = "seal", progress=print, settled: bool = False,
                  bin_s: float | None = None, announce: bool = False) -> dict:
     """The measure for every seed and setting (see the module docstring)."""
+    if bin_s is not None and not 0 < bin_s < float("inf"):
+        raise ConfigError(f"--bins must be a positive number of seconds, got {bin_s:g}")
+    after_s = (1.0 - CHANGE_FRACTION) * duration_s
+    if not after_s > SETTLE_S:                    # refused before minutes of simulation
+        raise ConfigError(f"--duration {duration_s:g}: the change comes at "
+                          f"{CHANGE_FRACTION:.0%} of it, which leaves {after_s:g} s after it; "
+                          f"the measure needs more than {SETTLE_S:g} s of free motion after "
+                          "the change (contacts take some of it)")
     import numpy as np
 
     from adapters.sim.scenarios import run_scenario
@@ -86,8 +95,6 @@ def run_recovery(seeds: list[int], settings: list[str], duration_s: float = 220.
     from service.threads import one_compute_thread
 
     one_compute_thread()
-    if bin_s is not None and not 0 < bin_s < float("inf"):
-        raise ConfigError(f"--bins must be a positive number of seconds, got {bin_s:g}")
     configs = _settings(settings)
     free_space = load_free_space(model)
     change_s = CHANGE_FRACTION * duration_s
@@ -101,7 +108,7 @@ def run_recovery(seeds: list[int], settings: list[str], duration_s: float = 220.
             r = replay(session, free_space, config, step1="torch",
                        setup_changes=announced_changes(session) if announce else ())
             try:
-                pre, post = recovery_levels(r, session, change_s)
+                pre, post = recovery_levels(r, session, change_s, settle_s=SETTLE_S)
             except ValueError as exc:
                 raise ConfigError(f"--duration {duration_s:g}: {exc}") from exc
             t = session.joint_states.t
@@ -130,7 +137,7 @@ def run_recovery(seeds: list[int], settings: list[str], duration_s: float = 220.
             if settled:
                 reference = references[seed]
                 r_ref = replay(reference, free_space, config, step1="torch")
-                _, post_ref = recovery_levels(r_ref, reference, change_s)
+                _, post_ref = recovery_levels(r_ref, reference, change_s, settle_s=SETTLE_S)
                 row.update(settled_post_n=round(post_ref, 4),
                            excess=round(post / post_ref, 4),
                            seconds=round(time.perf_counter() - t0, 1))

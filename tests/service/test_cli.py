@@ -168,7 +168,7 @@ def test_compare_writes_the_table_json_and_a_plot_per_session(tmp_path):
 def test_recovery_measures_issue_4_per_seed_and_refuses_bad_settings(tmp_path):
     out = tmp_path / "recovery.json"
     run = wrenchd("recovery", "--seeds", "5", "--set", '{"adaptation": {"refit_shrink": 0}}',
-                  "--settled", "--bins", "40", "--json", str(out))
+                  "--settled", "--bins", "40", "--duration", "160", "--json", str(out))
     result = json.loads(out.read_text())
     (row,) = result["rows"]
     assert row["seed"] == 5 and row["contact_offered"] == 0 and row["offered"] > 10_000
@@ -180,16 +180,19 @@ def test_recovery_measures_issue_4_per_seed_and_refuses_bad_settings(tmp_path):
     assert 0.5 < row["settled_post_n"] < 2.0 and row["settled_post_n"] != row["post_n"]
     assert row["excess"] == pytest.approx(row["post_n"] / row["settled_post_n"], abs=2e-4)
     assert "excess over settled" in run.stdout
-    # per 40 s bin from the change (88 s) to the end (220 s): 88, 128, 168, 208 (partial)
-    assert row["bins_start_s"] == [88.0, 128.0, 168.0, 208.0]
+    # per 40 s bin from the change (64 s, 40 % of 160 s) to the end: 64, 104, 144 (partial)
+    assert result["change_s"] == 64.0 and row["bins_start_s"] == [64.0, 104.0, 144.0]
     assert all(0.2 < v < 3.0 for v in row["post_bins_n"] + row["settled_bins_n"])
     assert row["excess_bins"] == pytest.approx(
         [a / b for a, b in zip(row["post_bins_n"], row["settled_bins_n"])], abs=2e-4)
-    assert "excess over settled per 40 s bin from 88 s" in run.stdout
+    assert "excess over settled per 40 s bin from 64 s" in run.stdout
     for args, word in ((["--set", "[1]"], "JSON object"),
                        (["--bins", "0"], "--bins must be a positive"),
                        (["--set", '{"gate": {"enter_sigma": -1}}'], "enter_sigma"),
-                       (["--duration", "100"], "free motion after")):
+                       # too short on its face: refused before simulating
+                       (["--duration", "100"], "leaves 60 s after it"),
+                       # long enough on its face, but contacts leave < 60 s of free motion
+                       (["--duration", "110"], "session ends before 60 s of free motion")):
         bad = wrenchd("recovery", "--seeds", "5", *args, check=False)
         assert bad.returncode == 2, bad.stderr
         assert word in bad.stderr and "Traceback" not in bad.stderr
