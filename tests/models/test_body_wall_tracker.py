@@ -64,6 +64,63 @@ def test_stiffness_step_across_an_announced_change():
     assert tracker.stiffnesses() == [tracker.stiffness(0), tracker.stiffness(1)]
 
 
+def wall_at(t, q, dq, changes):
+    """Body wall torques for pressures 12 mmHg, then each ``(time, pressure)`` from its time."""
+    pressure = np.full(len(t), 12.0)
+    for at, p in changes:
+        pressure[t >= at] = p
+    out = np.zeros((len(t), 2))
+    for p in np.unique(pressure):
+        m = pressure == p
+        out[m] = wall_torque(q[m], dq[m], p)
+    return out
+
+
+def add_in_pieces(tracker, t, q, dq, tau, lo, hi):
+    m = np.flatnonzero((t >= lo) & (t < hi))
+    for a in range(0, len(m), 250):
+        i = m[a:a + 250]
+        tracker.add(t[i], q[i], dq[i], tau[i])
+
+
+def test_a_late_notice_drops_the_bins_that_mixed_the_two_set_ups():
+    """The change at 60 s is told only once samples up to 75 s were added: the old segment's
+    bins from 60 s on (one closed, one open) held the new set-up and are dropped, so the
+    old stiffness stays the truth (unhandled, the mixed bins pulled it 11 % up, to 644 N/m)."""
+    t, q, dq = motion(200 * 120)
+    tau = wall_at(t, q, dq, [(60.0, 20.0)])
+    tracker = BodyWallTracker()
+    add_in_pieces(tracker, t, q, dq, tau, 0.0, 75.0)
+    assert max(b for b, s, _, _ in tracker.bins) == 60.0      # the mixed bin was closed
+    tracker.announce(60.0)
+    assert all(b + 10.0 <= 60.0 for b, s, _, _ in tracker.bins if s == 0)
+    add_in_pieces(tracker, t, q, dq, tau, 75.0, 120.0)
+    assert tracker.stiffness(0) == pytest.approx(580.0, rel=1e-6)
+    assert tracker.stiffness(1) == pytest.approx(900.0, rel=1e-6)
+    # the new segment's bins start at the change: 60-70 s saw no sample, 70-80 s its last 5 s
+    assert min(b for b, s, _, _ in tracker.bins if s == 1) == 70.0
+
+
+def test_a_notice_older_than_the_last_one_moves_the_later_segments_up():
+    """Told of 90 s first, then (late) of 60 s: the segment from 90 s becomes the third, the
+    samples of 60-90 s (added as the first segment's) are dropped, nothing else moves."""
+    t, q, dq = motion(200 * 120)
+    tau = wall_at(t, q, dq, [(60.0, 20.0), (90.0, 28.0)])
+    tracker = BodyWallTracker()
+    tracker.announce(90.0)
+    add_in_pieces(tracker, t, q, dq, tau, 0.0, 120.0)
+    k_late = tracker.stiffness(1)
+    tracker.announce(60.0)
+    assert tracker.starts == [60.0, 90.0]
+    assert tracker.stiffness(0) == pytest.approx(580.0, rel=1e-6)
+    assert tracker.stiffness(1) is None
+    assert tracker.stiffness(2) == k_late == pytest.approx(100.0 + 40.0 * 28.0, rel=1e-6)
+    assert {s for _, s, _, _ in tracker.bins} == {0, 2}
+    shift = tracker.carry_over(np.array([10.0, 70.0, 100.0]))
+    assert shift[0] == pytest.approx(k_late - 580.0, rel=1e-6)
+    assert shift[1] == shift[2] == 0.0                     # segment 1 is not known
+
+
 def test_nothing_is_carried_before_the_new_segment_has_a_bin():
     t, q, dq = motion(200 * 65)
     tracker = BodyWallTracker()
