@@ -73,6 +73,11 @@ class ValidationConfig(BaseModel):
         description="this many consecutive samples stamped before the last accepted one mean "
                     "the publisher's clock restarted (or one stamp came from the far future): "
                     "accept the new timeline ('clock_reset' event) instead of refusing forever")
+    setup_ahead_s: float = Field(
+        default=5.0, ge=0.0,
+        description="a set-up change notice stamped further than this after the arm's latest "
+                    "sample is refused: its clock is not the robot's (a wall-clock stamp on a "
+                    "robot stamping from its start would keep adaptation eager for ever) [s]")
 
 
 class PolicyConfig(BaseModel):
@@ -651,7 +656,8 @@ class ArmPipeline:
         moved) at sample time ``t`` [s] (None: the last estimated sample's): adaptation gets
         eager as after a drift, and the adapter carries its buffer over to the new set-up
         (:meth:`service.adaptation.Adapter.on_setup_change`). ``detail`` (JSON values) goes
-        into the ``setup_change`` event. A time that is not finite is refused with an error
+        into the ``setup_change`` event. A time that is not finite, or more than
+        ``validation.setup_ahead_s`` after the latest sample, is refused with an error
         event."""
         detail = dict(detail or {})
         last = self._times[-1] if self._times else None
@@ -663,6 +669,11 @@ class ArmPipeline:
         if not math.isfinite(t):
             return [self.refuse_setup(last if last is not None else 0.0,
                                       f"set-up change time {t!r} is not finite")]
+        ahead = self.config.validation.setup_ahead_s
+        if last is not None and t > last + ahead:
+            return [self.refuse_setup(last, f"set-up change stamped {t:.3f} s, more than "
+                                            f"{ahead:g} s after the arm's latest sample "
+                                            f"({last:.3f} s): not the robot's clock?")]
         self.counters.setup_changes += 1
         self._adapt_until = t + self.config.adaptation.eager_s
         if self.backend is not None:

@@ -212,10 +212,17 @@ def test_setup_change_makes_an_event_reaches_the_adapter_and_refuses_bad_times(s
     assert p.backend.adapter.body_wall.starts == pytest.approx([trocar.t[30], trocar.t[49]])
     events = p.setup_change(float("inf"))
     assert [(e.kind, e.detail["error"]) for e in events] == [("error", "setup")]
+    # a stamp from another clock (here the epoch's) is refused; 5 s ahead is still taken
+    last = float(trocar.t[49])
+    events = p.setup_change(1.7e9)
+    assert [(e.kind, e.detail["error"]) for e in events] == [("error", "setup")]
+    assert "more than 5 s after the arm's latest sample" in events[0].detail["reason"]
+    assert p.backend.adapter.body_wall.starts == pytest.approx([trocar.t[30], last])
+    assert [e.kind for e in p.setup_change(last + 5.0)] == ["setup_change"]
     status = p.status()
-    assert status["counters"]["setup_changes"] == 2
-    assert status["counters"]["error_kinds"] == {"setup": 2}
-    assert status["setup"]["t"] == pytest.approx(trocar.t[30])
+    assert status["counters"]["setup_changes"] == 3
+    assert status["counters"]["error_kinds"] == {"setup": 3}
+    assert status["setup"]["t"] == pytest.approx(last + 5.0)
     frozen = ArmPipeline("PSM1", seal, PipelineConfig(policy=PolicyConfig(name="frozen")))
     frozen.process(msg(trocar, 0))
     assert frozen.setup_change(None)[0].detail["carry_over"] is False
