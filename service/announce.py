@@ -6,6 +6,12 @@ daemon), so the notice is not published into the void. Without ``--at`` the chan
 the daemon places it at the arm's latest sample. An insufflator bridge or the OR console
 would publish the same message itself.
 
+Then it waits for the daemon's answer on ``{prefix}/{arm}/wrenchd/events``: a
+``setup_change`` event (accepted; exit 0) or an ``error`` event of kind ``setup`` (refused, with
+the daemon's reason; exit 1). Its subscriber is declared before the notice is put, on the same
+zenoh link, so the daemon knows it before it answers. Should no event come (an older daemon,
+a lost event), the daemon's status counters say whether the notice was taken.
+
 Example::
 
     wrenchd announce --arm PSM1 --pressure 20 --note "insufflation raised"
@@ -14,8 +20,9 @@ Example::
 from __future__ import annotations
 
 import argparse
+import json
 import math
-import time
+import threading
 
 from models.errors import ConfigError
 from service.echo import DEFAULT_CONNECT
@@ -31,22 +38,73 @@ def announce(args: argparse.Namespace) -> int:
         raise ConfigError(f"--at must be a sample time >= 0 [s], got {args.at:g}")
     payload = encode_setup_change(None if args.at is None else stamp_ns_of(args.at),
                                   args.pressure, args.note)
-    key = f"{args.prefix}/{args.arm}/setup"
+    base = f"{args.prefix}/{args.arm}"
+    key = f"{base}/setup"
+    answers: list[dict] = []
+    answered = threading.Event()
+
+    def on_event(sample) -> None:
+        try:
+            event = json.loads(sample.payload.to_bytes())
+        except ValueError:
+            return
+        if event.get("kind") == "setup_change" or (event.get("kind") == "error"
+                                                   and event.get("error") == "setup"):
+            answers.append(event)
+            answered.set()
+
     session = open_session(ZenohConfig(connect=args.connect or [DEFAULT_CONNECT]))
     try:
-        publisher = session.declare_publisher(key)
-        if not wait_for_subscriber(publisher, args.timeout):
+        events = session.declare_subscriber(f"{base}/wrenchd/events", on_event)
+        try:
+            publisher = session.declare_publisher(key)
+            if not wait_for_subscriber(publisher, args.timeout):
+                publisher.undeclare()
+                print(f"wrenchd announce: no daemon subscribed to '{key}' within "
+                      f"{args.timeout:g} s; nothing sent")
+                return 1
+            before = _counts(session, base)
+            publisher.put(payload)
+            print(f"wrenchd announce: sent {payload.decode()} on '{key}'", flush=True)
+            answered.wait(args.timeout)
             publisher.undeclare()
-            print(f"wrenchd announce: no daemon subscribed to '{key}' within "
-                  f"{args.timeout:g} s; nothing sent")
-            return 1
-        publisher.put(payload)
-        time.sleep(0.2)                 # let the put leave before the session closes
-        publisher.undeclare()
+        finally:
+            events.undeclare()
+        if answers:
+            return _report(answers[0])
+        after = _counts(session, base)
     finally:
         session.close()
-    print(f"wrenchd announce: sent {payload.decode()} on '{key}'")
-    return 0
+    if before is not None and after is not None:
+        if after[0] > before[0]:
+            print("wrenchd announce: accepted (the daemon's status counts it; its event did "
+                  "not reach this command)")
+            return 0
+        if after[1] > before[1]:
+            print("wrenchd announce: refused (the daemon's status counts a set-up error; its "
+                  "event, with the reason, did not reach this command)")
+            return 1
+    print(f"wrenchd announce: no answer from the daemon within {args.timeout:g} s")
+    return 1
+
+
+def _counts(session, base: str) -> tuple[int, int] | None:
+    """The daemon's (set-up changes taken, set-up notices refused), or None without an
+    answer."""
+    for reply in session.get(f"{base}/wrenchd/status", timeout=2.0):
+        if reply.ok is not None:
+            c = json.loads(reply.ok.payload.to_bytes())["counters"]
+            return c.get("setup_changes", 0), c.get("error_kinds", {}).get("setup", 0)
+    return None
+
+
+def _report(event: dict) -> int:
+    if event["kind"] == "setup_change":
+        print(f"wrenchd announce: accepted: the change is at t = {event['t']:.3f} s of the "
+              f"arm's clock (carry-over {'on' if event.get('carry_over') else 'off'})")
+        return 0
+    print(f"wrenchd announce: refused: {event.get('reason', '(no reason given)')}")
+    return 1
 
 
 def register(sub) -> None:
@@ -61,5 +119,6 @@ def register(sub) -> None:
     p.add_argument("--connect", action="append", metavar="ENDPOINT",
                    help=f"zenoh endpoint of the daemon (default {DEFAULT_CONNECT})")
     p.add_argument("--timeout", type=float, default=5.0,
-                   help="how long to wait for the daemon's subscriber [s]")
+                   help="how long to wait for the daemon's subscriber, and then for its "
+                        "answer [s]")
     p.set_defaults(func=announce)

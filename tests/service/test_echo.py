@@ -36,6 +36,10 @@ def test_echo_prints_live_wrenches_events_and_status(tmp_path):
         told = subprocess.run([*CLI, "announce", "--arm", "PSM2", "--connect", endpoint,
                                "--pressure", "18", "--note", "pressure up"],
                               capture_output=True, text=True, timeout=60)
+        # stamped on another clock (1000 s; the robot's ran 3 s): the daemon refuses it, and
+        # announce says why
+        foreign = subprocess.run([*CLI, "announce", "--arm", "PSM2", "--connect", endpoint,
+                                  "--at", "1000"], capture_output=True, text=True, timeout=60)
         status = subprocess.run([*CLI, "echo", "--arm", "PSM2", "--connect", endpoint,
                                  "--status", "--timeout", "10"], capture_output=True, text=True,
                                 timeout=60)
@@ -57,7 +61,12 @@ def test_echo_prints_live_wrenches_events_and_status(tmp_path):
     assert answer["counters"]["estimated"] >= 40 and answer["arm"] == "PSM2"
     assert told.returncode == 0, told.stderr
     assert "sent" in told.stdout and "dvrk/PSM2/setup" in told.stdout
+    assert "accepted: the change is at t = " in told.stdout and "carry-over on" in told.stdout
+    assert foreign.returncode == 1, foreign.stderr
+    assert "refused: set-up change stamped 1000.000 s" in foreign.stdout
+    assert "not the robot's clock?" in foreign.stdout
     assert answer["counters"]["setup_changes"] == 1
+    assert answer["counters"]["error_kinds"] == {"setup": 1}
     assert answer["setup"]["pressure_mmhg"] == 18.0 and answer["setup"]["note"] == "pressure up"
 
 
@@ -81,3 +90,28 @@ def test_announce_says_when_no_daemon_listens_and_refuses_bad_values():
     bad = subprocess.run([*CLI, "announce", "--pressure", "250"], capture_output=True,
                          text=True, timeout=60)
     assert bad.returncode != 0 and "--pressure must be in [0, 100]" in bad.stderr + bad.stdout
+
+
+def test_announce_falls_back_on_the_status_when_no_event_comes_back(tmp_path):
+    """A daemon whose events go elsewhere (its own [arms.keys]): announce learns from the
+    status counters whether the notice was taken (a stamped one) or refused (an unstamped one
+    before the arm's first sample: the daemon cannot place it)."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    config = write_config(tmp_path / "wrenchd.toml", endpoint, "json", tmp_path / "logs")
+    config.write_text(config.read_text() + '[arms.keys]\nevents = "elsewhere/events"\n')
+    daemon = subprocess.Popen([*CLI, "serve", "--config", str(config)], stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE, text=True)
+    try:
+        assert "dvrk/PSM2/measured_js" in daemon.stdout.readline()
+        runs = [subprocess.run([*CLI, "announce", "--arm", "PSM2", "--connect", endpoint,
+                                "--timeout", "2", *at], capture_output=True, text=True,
+                               timeout=60) for at in (["--at", "0.5"], [])]
+    finally:
+        daemon.send_signal(signal.SIGINT)
+        _, err = daemon.communicate(timeout=60)
+    assert daemon.returncode == 0, err
+    taken, refused = runs
+    assert taken.returncode == 0, taken.stdout + taken.stderr
+    assert "accepted (the daemon's status counts it" in taken.stdout
+    assert refused.returncode == 1, refused.stdout + refused.stderr
+    assert "refused (the daemon's status counts a set-up error" in refused.stdout
