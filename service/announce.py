@@ -25,7 +25,7 @@ import math
 import threading
 
 from models.errors import ConfigError
-from service.echo import DEFAULT_CONNECT
+from service.echo import DEFAULT_CONNECT, query_status
 
 
 def announce(args: argparse.Namespace) -> int:
@@ -91,11 +91,11 @@ def announce(args: argparse.Namespace) -> int:
 def _counts(session, base: str) -> tuple[int, int] | None:
     """The daemon's (set-up changes taken, set-up notices refused), or None without an
     answer."""
-    for reply in session.get(f"{base}/wrenchd/status", timeout=2.0):
-        if reply.ok is not None:
-            c = json.loads(reply.ok.payload.to_bytes())["counters"]
-            return c.get("setup_changes", 0), c.get("error_kinds", {}).get("setup", 0)
-    return None
+    status = query_status(session, f"{base}/wrenchd/status", 2.0)
+    if status is None:
+        return None
+    c = status["counters"]
+    return c.get("setup_changes", 0), c.get("error_kinds", {}).get("setup", 0)
 
 
 def _report(event: dict) -> int:

@@ -27,13 +27,21 @@ def echo(args: argparse.Namespace) -> int:
         session.close()
 
 
-def _status(session, key: str, timeout: float) -> int:
+def query_status(session, key: str, timeout: float) -> dict | None:
+    """The first status a daemon answers on ``key`` within ``timeout`` [s], or None."""
     for reply in session.get(key, timeout=timeout):
         if reply.ok is not None:
-            print(json.dumps(json.loads(reply.ok.payload.to_bytes()), indent=2))
-            return 0
-    print(f"wrenchd echo: no answer from '{key}' within {timeout:g} s")
-    return 1
+            return json.loads(reply.ok.payload.to_bytes())
+    return None
+
+
+def _status(session, key: str, timeout: float) -> int:
+    status = query_status(session, key, timeout)
+    if status is None:
+        print(f"wrenchd echo: no answer from '{key}' within {timeout:g} s")
+        return 1
+    print(json.dumps(status, indent=2))
+    return 0
 
 
 def _stream(session, base: str, args: argparse.Namespace) -> int:
