@@ -16,8 +16,8 @@ import os
 
 import numpy as np
 
-from models.errors import AdapterError, DataError
-from models.series import N_JOINTS, JointStates
+from wrenchd.models.errors import AdapterError, DataError
+from wrenchd.models.series import N_JOINTS, JointStates
 
 WPI_COLUMNS = 21
 PAPER_COLUMNS = 19

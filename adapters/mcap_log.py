@@ -4,7 +4,7 @@ Topics (JSON with JSON Schemas, so Foxglove plots them):
 
 =====================  ===================================================================
 ``/psm/measured_js``   every accepted input, the session format of
-                       :mod:`adapters.mcap_session` (so a daemon log is a replayable session)
+                       :mod:`wrenchd.adapters.mcap_session` (so a daemon log is a replayable session)
 ``/wrenchd/estimate``  per sample: wrench, free-motion flag, gate score, model version,
                        predicted and external joint torques (residual)
 ``/wrenchd/events``    errors, gaps, contacts, drifts, rounds, model swaps, log problems
@@ -37,9 +37,9 @@ import orjson
 from mcap.writer import CompressionType, Writer
 from pydantic import BaseModel, ConfigDict, Field
 
-from adapters.mcap_session import (JOINT_STATE_SCHEMA, SESSION_FORMAT, SESSION_METADATA_NAME,
+from wrenchd.adapters.mcap_session import (JOINT_STATE_SCHEMA, SESSION_FORMAT, SESSION_METADATA_NAME,
                                    TOPIC_JOINT_STATES)
-from adapters.messages import encode_joint_state
+from wrenchd.adapters.messages import encode_joint_state
 
 TOPIC_ESTIMATE = "/wrenchd/estimate"
 TOPIC_EVENTS = "/wrenchd/events"

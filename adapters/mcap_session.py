@@ -32,8 +32,8 @@ from mcap.records import Channel, Chunk, Message, Metadata
 from mcap.stream_reader import StreamReader, breakup_chunk
 from mcap.writer import CompressionType, Writer
 
-from models.errors import AdapterError, DataError
-from models.series import JOINT_NAMES, N_JOINTS, GroundTruth, JointStates, Session
+from wrenchd.models.errors import AdapterError, DataError
+from wrenchd.models.series import JOINT_NAMES, N_JOINTS, GroundTruth, JointStates, Session
 
 TOPIC_JOINT_STATES = "/psm/measured_js"
 TOPIC_WRENCH = "/psm/truth/wrench"

@@ -26,7 +26,7 @@ from typing import Any, Literal
 import numpy as np
 import orjson
 
-from models.errors import ConfigError, DataError
+from wrenchd.models.errors import ConfigError, DataError
 
 Encoding = Literal["json", "cdr"]
 ENCODINGS: tuple[str, ...] = ("json", "cdr")

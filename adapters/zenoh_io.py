@@ -22,7 +22,7 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from models.errors import AdapterError
+from wrenchd.models.errors import AdapterError
 
 
 class ZenohConfig(BaseModel):

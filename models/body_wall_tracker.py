@@ -3,7 +3,7 @@
 Why: after an announced set-up change (the insufflator's pressure set higher, say), the
 adaptation's replay buffer still holds the old set-up's torques; every mini-batch pulls the
 correction net back towards them (measured in the README, "Insufflation recovery"). The body
-wall at the port is the effect insufflation changes (:mod:`models.physics.effects.body_wall`):
+wall at the port is the effect insufflation changes (:mod:`wrenchd.models.physics.effects.body_wall`):
 a lateral spring on the shaft whose stiffness ``k`` [N/m] rises with the pressure. Its torque
 on yaw and pitch is ``k g(q)``, with ``g`` the torque per N/m at the incision point (plus a
 damping term ``c h(q, dq)``). So once the stiffness before and after the change is known,
@@ -48,9 +48,9 @@ from bisect import bisect_right
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from models.errors import DataError
-from models.physics.effects.base import Motion
-from models.physics.effects.body_wall import BodyWall, BodyWallParams
+from wrenchd.models.errors import DataError
+from wrenchd.models.physics.effects.base import Motion
+from wrenchd.models.physics.effects.body_wall import BodyWall, BodyWallParams
 
 #: joints the body wall acts on (0-based): outer yaw and pitch
 WALL_JOINTS = (0, 1)

@@ -55,8 +55,8 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 from river import stats
 
-from models.errors import DataError
-from models.series import N_JOINTS
+from wrenchd.models.errors import DataError
+from wrenchd.models.series import N_JOINTS
 
 
 class GateConfig(BaseModel):

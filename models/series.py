@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from models.errors import DataError
+from wrenchd.models.errors import DataError
 
 N_JOINTS = 6
 JOINT_NAMES: tuple[str, ...] = (

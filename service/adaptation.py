@@ -1,7 +1,7 @@
 """Lifelong adaptation of the correction net (step 2) on gated free-motion samples.
 
 :class:`Adapter` is the deterministic core, used the same way by the daemon (in a worker
-process, :mod:`service.worker`) and by replay (inline, in simulated time):
+process, :mod:`wrenchd.service.worker`) and by replay (inline, in simulated time):
 
 * :meth:`Adapter.add` takes free-motion samples (``Corr`` input window, step-1 torque,
   measured torque). Every ``holdout_every``-th sample goes to a held-out set of *recent* free
@@ -20,7 +20,7 @@ process, :mod:`service.worker`) and by replay (inline, in simulated time):
 * :meth:`Adapter.on_setup_change` is told of a set-up change (the daemon's ``setup`` key):
   adaptation gets eager as after a drift, and the buffer is *carried over*: the body wall's
   stiffness is tracked per bin of sample time on the offered samples
-  (:class:`~models.body_wall_tracker.BodyWallTracker`), and before every round each buffered
+  (:class:`~wrenchd.models.body_wall_tracker.BodyWallTracker`), and before every round each buffered
   sample from an earlier segment gets ``(k_now - k_then) g(q)`` added to its measured yaw and
   pitch torques (``g``: the wall's torque per N/m). The shift follows the estimates as bins
   close; each row remembers what it was given. Measured on ``insufflation-change`` seeds 3-8
@@ -61,11 +61,11 @@ import numpy as np
 import torch
 from pydantic import BaseModel, ConfigDict, Field
 
-from models.body_wall_tracker import (WALL_JOINTS, BodyWallTracker, BodyWallTrackerConfig,
+from wrenchd.models.body_wall_tracker import (WALL_JOINTS, BodyWallTracker, BodyWallTrackerConfig,
                                      wall_regressors)
-from models.estimator.corr_finetune import CorrFineTuner
-from models.estimator.correction import Corr, CorrConfig, CorrKernel
-from models.series import N_JOINTS
+from wrenchd.models.estimator.corr_finetune import CorrFineTuner
+from wrenchd.models.estimator.correction import Corr, CorrConfig, CorrKernel
+from wrenchd.models.series import N_JOINTS
 
 
 class AdaptationConfig(BaseModel):

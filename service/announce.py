@@ -1,7 +1,7 @@
 """``wrenchd announce``: tell a running daemon that an arm's set-up changed.
 
 Publishes one set-up change notice on ``{prefix}/{arm}/setup`` (JSON, see
-:func:`adapters.messages.encode_setup_change`) once zenoh reports a subscriber there (the
+:func:`wrenchd.adapters.messages.encode_setup_change`) once zenoh reports a subscriber there (the
 daemon), so the notice is not published into the void. Without ``--at`` the change is "now":
 the daemon places it at the arm's latest sample. An insufflator bridge or the OR console
 would publish the same message itself.
@@ -24,13 +24,13 @@ import json
 import math
 import threading
 
-from models.errors import ConfigError
-from service.echo import DEFAULT_CONNECT, query_status
+from wrenchd.models.errors import ConfigError
+from wrenchd.service.echo import DEFAULT_CONNECT, query_status
 
 
 def announce(args: argparse.Namespace) -> int:
-    from adapters.messages import encode_setup_change, stamp_ns_of
-    from adapters.zenoh_io import ZenohConfig, open_session, wait_for_subscriber
+    from wrenchd.adapters.messages import encode_setup_change, stamp_ns_of
+    from wrenchd.adapters.zenoh_io import ZenohConfig, open_session, wait_for_subscriber
 
     if args.pressure is not None and not 0.0 <= args.pressure <= 100.0:
         raise ConfigError(f"--pressure must be in [0, 100] mmHg, got {args.pressure:g}")

@@ -22,10 +22,10 @@ def bench_inference(duration_s: float = 60.0, seed: int = 3, warmup: int = 500) 
     import torch
 
     torch.set_num_threads(1)
-    from adapters.sim.scenarios import run_scenario
-    from models.estimator.correction import Corr
-    from models.estimator.estimator import TwoStepEstimator
-    from models.estimator.free_space import FreeSpaceModel
+    from wrenchd.adapters.sim.scenarios import run_scenario
+    from wrenchd.models.estimator.correction import Corr
+    from wrenchd.models.estimator.estimator import TwoStepEstimator
+    from wrenchd.models.estimator.free_space import FreeSpaceModel
 
     torch.manual_seed(seed)
     js = run_scenario("trocar-contact", duration_s, seed).joint_states
@@ -66,12 +66,12 @@ def run(kind: str, json_path: str | None, duration_s: float, arms: int = 1,
     elif kind == "arm":
         result = bench_arm_thread(duration_s=duration_s)
     elif kind in ("service", "soak", "floor"):
-        from service.bench_service import bench_service
+        from wrenchd.service.bench_service import bench_service
 
         result = bench_service(n_arms=arms, rate_hz=rate_hz, duration_s=duration_s,
                                floor=kind == "floor", pin=pin, realtime=realtime)
     elif kind == "replay":
-        from service.replay_cmd import run_replay_bench
+        from wrenchd.service.replay_cmd import run_replay_bench
 
         run_replay_bench(json_path, duration_s)        # prints and writes its JSON
         return 0
@@ -96,13 +96,13 @@ def bench_arm_thread(duration_s: float = 20.0) -> dict:
 
     from collections import deque
 
-    from adapters.mcap_log import TOPIC_ESTIMATE, LogConfig, McapLog, format_record
-    from adapters.mcap_session import TOPIC_JOINT_STATES
-    from adapters.messages import decode_joint_state, encode_joint_state, encode_wrench
-    from adapters.sim.scenarios import run_scenario
-    from models.estimator.pretrained import load_pretrained
-    from service.daemon import estimate_payload
-    from service.pipeline import ArmPipeline, PipelineConfig, PolicyConfig
+    from wrenchd.adapters.mcap_log import TOPIC_ESTIMATE, LogConfig, McapLog, format_record
+    from wrenchd.adapters.mcap_session import TOPIC_JOINT_STATES
+    from wrenchd.adapters.messages import decode_joint_state, encode_joint_state, encode_wrench
+    from wrenchd.adapters.sim.scenarios import run_scenario
+    from wrenchd.models.estimator.pretrained import load_pretrained
+    from wrenchd.service.daemon import estimate_payload
+    from wrenchd.service.pipeline import ArmPipeline, PipelineConfig, PolicyConfig
 
     js = run_scenario("trocar", duration_s, 1).joint_states
     payloads = [encode_joint_state("json", int(round(js.t[i] * 1e9)), js.names, js.position[i],

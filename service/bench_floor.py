@@ -1,13 +1,13 @@
 """The latency floor of ``wrenchd bench service`` on this machine (``wrenchd bench floor``).
 
 A stand-in for the daemon with the daemon's plumbing and none of its work: per arm a
-subscriber whose callback puts the payload in a :class:`~service.daemon.SampleRing`, one
+subscriber whose callback puts the payload in a :class:`~wrenchd.service.daemon.SampleRing`, one
 thread that drains the rings, reads each joint state's stamp and publishes a zero wrench with
 that stamp. What ``bench service`` measures against it is what zenoh on loopback, the
 callback-to-thread hand-off, the GIL and this machine's scheduling cost before any
 estimation: the part of the daemon's latency that no faster estimator can remove.
 
-Run by the bench as ``python -m service.bench_floor --listen ENDPOINT --arms PSM1 ...``.
+Run by the bench as ``python -m wrenchd.service.bench_floor --listen ENDPOINT --arms PSM1 ...``.
 """
 
 from __future__ import annotations
@@ -20,9 +20,9 @@ import threading
 import numpy as np
 import orjson
 
-from adapters.messages import encode_wrench
-from adapters.zenoh_io import ZenohConfig, open_session
-from service.daemon import SWITCH_INTERVAL_S, SampleRing
+from wrenchd.adapters.messages import encode_wrench
+from wrenchd.adapters.zenoh_io import ZenohConfig, open_session
+from wrenchd.service.daemon import SWITCH_INTERVAL_S, SampleRing
 
 _ZERO = np.zeros(6)
 
@@ -43,7 +43,7 @@ def _serve(rings: dict[str, SampleRing], pubs: dict, wake: threading.Event,
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m service.bench_floor")
+    parser = argparse.ArgumentParser(prog="python -m wrenchd.service.bench_floor")
     parser.add_argument("--listen", required=True, help="zenoh endpoint to listen on")
     parser.add_argument("--arms", nargs="+", default=["PSM1"])
     args = parser.parse_args(argv)

@@ -32,9 +32,9 @@ from typing import Any
 
 import numpy as np
 
-from adapters.messages import encode_joint_state
-from adapters.zenoh_io import ZenohConfig, open_session
-from service.threads import enter_realtime, normal_scheduling, realtime_below
+from wrenchd.adapters.messages import encode_joint_state
+from wrenchd.adapters.zenoh_io import ZenohConfig, open_session
+from wrenchd.service.threads import enter_realtime, normal_scheduling, realtime_below
 
 STEAL_PERIOD_S = 0.1    # how often the hypervisor's steal counter is read while publishing
 
@@ -140,7 +140,7 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
 
     Also samples the daemon's resident memory (with its worker) once a second: the soak run
     is this benchmark with a long ``duration_s`` (``wrenchd bench soak``). With ``floor``
-    the daemon is replaced by :mod:`service.bench_floor` (its plumbing without estimation:
+    the daemon is replaced by :mod:`wrenchd.service.bench_floor` (its plumbing without estimation:
     ``wrenchd bench floor``). With ``pin`` the daemon gets the last CPU to itself and its
     worker and this process share the others (the daemon's ``cpus`` settings). ``realtime``
     is the daemon's ``[cpus] realtime_priority`` (``auto``, ``off`` or a SCHED_FIFO priority),
@@ -148,8 +148,8 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
     real-time class, and a bench left in the normal class would be measured waiting behind the
     machine's other work (measured under load ~4: p99 6.3-11.7 ms with only the daemon
     real-time, 3.2 ms with both). The floor bench runs in the normal class."""
-    from adapters.sim.scenarios import run_scenario
-    from adapters.sim.simulator import SimulatorConfig
+    from wrenchd.adapters.sim.scenarios import run_scenario
+    from wrenchd.adapters.sim.simulator import SimulatorConfig
 
     arms = [f"PSM{k + 1}" for k in range(n_arms)]
     total_s = warmup_s + duration_s
@@ -175,9 +175,9 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
         os.sched_setaffinity(0, placement[1])
     _config(workdir / "bench.toml", endpoint, arms, workdir / "logs", adaptation, log, placement,
             realtime)
-    command = ([sys.executable, "-m", "service.bench_floor", "--listen", endpoint, "--arms",
+    command = ([sys.executable, "-m", "wrenchd.service.bench_floor", "--listen", endpoint, "--arms",
                 *arms] if floor else
-               [sys.executable, "-m", "service.cli", "serve", "--config",
+               [sys.executable, "-m", "wrenchd", "serve", "--config",
                 str(workdir / "bench.toml")])
     daemon = subprocess.Popen(
         command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,

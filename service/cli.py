@@ -19,7 +19,7 @@ import sys
 import time
 from pathlib import Path
 
-from models.errors import WrenchdError
+from wrenchd.models.errors import WrenchdError
 
 #: Loopback by default: nothing leaves the machine unless the user says so.
 DEFAULT_LISTEN = "tcp/127.0.0.1:7447"
@@ -53,7 +53,7 @@ class LazyChoices:
 
 
 def _scenario_names() -> list[str]:
-    from adapters.sim.scenarios import SCENARIOS
+    from wrenchd.adapters.sim.scenarios import SCENARIOS
 
     return sorted(SCENARIOS)
 
@@ -62,10 +62,10 @@ SCENARIO_CHOICES = LazyChoices(_scenario_names)
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
-    from adapters.mcap_session import write_session
-    from adapters.sim.scenarios import run_scenario
-    from adapters.sim.simulator import SimulatorConfig
-    from models.physics.model import PhysicsModel
+    from wrenchd.adapters.mcap_session import write_session
+    from wrenchd.adapters.sim.scenarios import run_scenario
+    from wrenchd.adapters.sim.simulator import SimulatorConfig
+    from wrenchd.models.physics.model import PhysicsModel
 
     model = PhysicsModel.load(args.model) if args.model else None
     config = SimulatorConfig(internal_rate_hz=args.internal_rate, publish_rate_hz=args.rate)
@@ -84,7 +84,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def _cmd_inspect(args: argparse.Namespace) -> int:
-    from adapters.mcap_session import read_session_report
+    from wrenchd.adapters.mcap_session import read_session_report
 
     session, info = read_session_report(args.session)
     js = session.joint_states
@@ -104,7 +104,7 @@ def _cmd_inspect(args: argparse.Namespace) -> int:
 
 
 def _cmd_effects(args: argparse.Namespace) -> int:
-    from models.physics.effects import EFFECTS
+    from wrenchd.models.physics.effects import EFFECTS
 
     for name, cls in sorted(EFFECTS.items()):
         doc = (cls.__doc__ or "").strip().splitlines()[0]
@@ -116,9 +116,9 @@ def _cmd_effects(args: argparse.Namespace) -> int:
 
 
 def _cmd_serve(args: argparse.Namespace) -> int:
-    from service.config import load_settings
-    from service.daemon import Daemon
-    from service.threads import one_compute_thread
+    from wrenchd.service.config import load_settings
+    from wrenchd.service.daemon import Daemon
+    from wrenchd.service.threads import one_compute_thread
 
     one_compute_thread()
 
@@ -136,8 +136,8 @@ def _cmd_serve(args: argparse.Namespace) -> int:
 
 
 def _cmd_robot(args: argparse.Namespace) -> int:
-    from adapters.zenoh_io import ZenohConfig
-    from service.stream import serve_simulated
+    from wrenchd.adapters.zenoh_io import ZenohConfig
+    from wrenchd.service.stream import serve_simulated
 
     listen = args.listen if args.listen is not None else ([] if args.connect else [DEFAULT_LISTEN])
     zenoh = ZenohConfig(mode=args.mode, listen=listen, connect=args.connect or [])
@@ -148,14 +148,14 @@ def _cmd_robot(args: argparse.Namespace) -> int:
 
 
 def _cmd_config(args: argparse.Namespace) -> int:
-    from service.config import load_settings
+    from wrenchd.service.config import load_settings
 
     print(json.dumps(load_settings(args.config).model_dump(mode="json"), indent=2))
     return 0
 
 
 def _cmd_echo(args: argparse.Namespace) -> int:
-    from service.echo import echo
+    from wrenchd.service.echo import echo
 
     return echo(args)
 
@@ -170,8 +170,8 @@ def _realtime_setting(text: str) -> int | str:
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
-    from service.bench import run
-    from service.threads import one_compute_thread
+    from wrenchd.service.bench import run
+    from wrenchd.service.threads import one_compute_thread
 
     one_compute_thread()           # the bench process; the daemon and worker do it themselves
 
@@ -186,9 +186,9 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
 #: Modules that add their own sub-commands: each has ``register(subparsers)``, which adds a
 #: parser whose ``func(args) -> int`` runs it.
-COMMAND_MODULES: list[str] = ["service.train_cmd", "service.reproduce_cmd", "service.real_data_cmd",
-                              "service.discrepancy_cmd", "service.replay_cmd",
-                              "service.recovery_cmd", "service.announce"]
+COMMAND_MODULES: list[str] = ["wrenchd.service.train_cmd", "wrenchd.service.reproduce_cmd", "wrenchd.service.real_data_cmd",
+                              "wrenchd.service.discrepancy_cmd", "wrenchd.service.replay_cmd",
+                              "wrenchd.service.recovery_cmd", "wrenchd.service.announce"]
 
 
 def build_parser() -> argparse.ArgumentParser:

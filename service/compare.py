@@ -16,14 +16,14 @@ from typing import Any
 
 import numpy as np
 
-from models.estimator.free_space import FreeSpaceModel
-from models.series import Session
-from service.pipeline import PipelineConfig
-from service.policies import get_policy
-from service.replay import replay
-from service.replay_metrics import free_error_series, replay_metrics
-from service.replay_output import _finite
-from service.replay_source import drift_onsets, load_session
+from wrenchd.models.estimator.free_space import FreeSpaceModel
+from wrenchd.models.series import Session
+from wrenchd.service.pipeline import PipelineConfig
+from wrenchd.service.policies import get_policy
+from wrenchd.service.replay import replay
+from wrenchd.service.replay_metrics import free_error_series, replay_metrics
+from wrenchd.service.replay_output import _finite
+from wrenchd.service.replay_source import drift_onsets, load_session
 
 
 def _slug(spec: str) -> str:

@@ -22,11 +22,11 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from pydantic_settings import (BaseSettings, PydanticBaseSettingsSource, SettingsConfigDict,
                                TomlConfigSettingsSource)
 
-from adapters.mcap_log import LogConfig
-from adapters.zenoh_io import ZenohConfig
-from models.errors import ConfigError
-from service.pipeline import PipelineConfig
-from service.threads import AUTO_REALTIME_PRIORITY
+from wrenchd.adapters.mcap_log import LogConfig
+from wrenchd.adapters.zenoh_io import ZenohConfig
+from wrenchd.models.errors import ConfigError
+from wrenchd.service.pipeline import PipelineConfig
+from wrenchd.service.threads import AUTO_REALTIME_PRIORITY
 
 #: Loopback by default: nothing leaves the machine unless the user says so.
 DEFAULT_LISTEN = "tcp/127.0.0.1:7447"
@@ -78,7 +78,7 @@ class SimulatorSettings(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    scenario: str = Field(default="trocar-contact", description="adapters.sim scenario")
+    scenario: str = Field(default="trocar-contact", description="wrenchd.adapters.sim scenario")
     seed: int = 0
     rate_hz: float = Field(default=200.0, gt=0.0, le=5000.0)
 

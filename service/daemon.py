@@ -8,12 +8,12 @@ One zenoh session per daemon; per arm:
 * the daemon's estimation thread (one for all arms, interleaving them) drains the ring
   through the arm's :class:`ArmPipeline` (decode -> validate -> estimate -> gate), publishes
   the wrench and events, and hands inputs, estimates, events and a status snapshot to the log
-  writer process (:mod:`service.log_process`), which formats and writes them to the arm's
+  writer process (:mod:`wrenchd.service.log_process`), which formats and writes them to the arm's
   :class:`McapLog` (flushed every second, rotated) outside the daemon's GIL;
 * a queryable ``status`` (JSON: model version, rates, latency percentiles, counters, gate and
   drift state) and a liveliness token ``alive``.
 
-One adaptation worker process serves all arms (:mod:`service.worker`). With
+One adaptation worker process serves all arms (:mod:`wrenchd.service.worker`). With
 ``robot = "simulated"`` (the embedded default) the daemon also starts the simulated PSM as a
 separate process publishing on each arm's ``measured_js`` (``wrenchd robot``), recording its
 ground truth beside the logs.
@@ -40,20 +40,20 @@ from typing import Any
 import numpy as np
 import orjson
 
-from adapters.mcap_log import TOPIC_ESTIMATE, TOPIC_EVENTS, TOPIC_STATUS, McapLog
-from adapters.mcap_session import TOPIC_JOINT_STATES
-from adapters.messages import (decode_joint_state, decode_setup_change, encode_wrench,
+from wrenchd.adapters.mcap_log import TOPIC_ESTIMATE, TOPIC_EVENTS, TOPIC_STATUS, McapLog
+from wrenchd.adapters.mcap_session import TOPIC_JOINT_STATES
+from wrenchd.adapters.messages import (decode_joint_state, decode_setup_change, encode_wrench,
                                prepare_encoding)
-from adapters.zenoh_io import open_session
-from models.errors import ConfigError, DataError
-from models.estimator.free_space import FreeSpaceModel
-from models.series import JOINT_NAMES
-from service.config import ArmConfig, ServiceSettings
-from service.adaptation import normalisation_of
-from service.pipeline import ArmPipeline, Estimate, Event
-from service.log_process import LogWriterProcess
-from service.threads import enter_realtime, normal_scheduling, realtime, realtime_below
-from service.worker import ProcessAdaptation, WorkerProcess
+from wrenchd.adapters.zenoh_io import open_session
+from wrenchd.models.errors import ConfigError, DataError
+from wrenchd.models.estimator.free_space import FreeSpaceModel
+from wrenchd.models.series import JOINT_NAMES
+from wrenchd.service.config import ArmConfig, ServiceSettings
+from wrenchd.service.adaptation import normalisation_of
+from wrenchd.service.pipeline import ArmPipeline, Estimate, Event
+from wrenchd.service.log_process import LogWriterProcess
+from wrenchd.service.threads import enter_realtime, normal_scheduling, realtime, realtime_below
+from wrenchd.service.worker import ProcessAdaptation, WorkerProcess
 
 SWITCH_INTERVAL_S = 2e-4
 LINK_CHECK_S = 0.5      # how often the session's routers and peers are counted [s]
@@ -63,8 +63,8 @@ SETUP_INBOX = 64        # set-up change notices waiting at most per arm (the old
 
 def load_free_space(spec: str) -> FreeSpaceModel:
     """A shipped step-1 model by name (``base``, ``seal``) or a step-1 checkpoint file."""
-    from models.estimator.checkpoint import load_checkpoint
-    from models.estimator.pretrained import PRETRAINED, load_pretrained
+    from wrenchd.models.estimator.checkpoint import load_checkpoint
+    from wrenchd.models.estimator.pretrained import PRETRAINED, load_pretrained
 
     if spec in PRETRAINED:
         return load_pretrained(spec)
@@ -119,7 +119,7 @@ def _percentiles(values) -> dict[str, float | None]:
 
 def estimate_payload(est: Estimate, frame_id: str = "psm_base") -> tuple[str, tuple]:
     """The ``/wrenchd/estimate`` log record of one estimate, as plain values for the log
-    writer (:func:`adapters.mcap_log.format_record` makes the bytes)."""
+    writer (:func:`wrenchd.adapters.mcap_log.format_record` makes the bytes)."""
     return ("estimate", (est.stamp_ns, frame_id, est.wrench.tolist(), bool(est.free),
                          float(est.score), int(est.model_version), bool(est.restarted),
                          est.predicted_torque.tolist(), est.external_torque.tolist()))
@@ -199,7 +199,7 @@ class ArmRuntime:
         self._count_at, self._count_t = 0, now
 
     def _load_corr(self, path: str) -> None:
-        from models.estimator.checkpoint import load_checkpoint
+        from wrenchd.models.estimator.checkpoint import load_checkpoint
 
         ckpt = load_checkpoint(path)
         if ckpt.kind != "corr":
@@ -398,7 +398,7 @@ class ArmRuntime:
 def _robot_command(settings: ServiceSettings, arm: str) -> list[str]:
     sim = settings.simulator
     endpoints = settings.zenoh.listen or ["tcp/127.0.0.1:7447"]
-    cmd = [sys.executable, "-m", "service.cli", "robot", "--scenario", sim.scenario,
+    cmd = [sys.executable, "-m", "wrenchd", "robot", "--scenario", sim.scenario,
            "--seed", str(sim.seed), "--arm", arm, "--rate", str(sim.rate_hz),
            "--prefix", settings.prefix,
            "--out-dir", str(Path(settings.log.directory) / "robot"), "--quiet"]

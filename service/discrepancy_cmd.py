@@ -14,8 +14,8 @@ import argparse
 import time
 from pathlib import Path
 
-from models.errors import DataError
-from models.series import JointStates
+from wrenchd.models.errors import DataError
+from wrenchd.models.series import JointStates
 
 FORMATS = ("auto", "wpi", "paper", "mcap")
 
@@ -23,17 +23,17 @@ FORMATS = ("auto", "wpi", "paper", "mcap")
 def read_measured(path: str, fmt: str = "auto", rate_hz: float = 200.0) -> JointStates:
     """Joint states of a recording: CSV (WPI or paper layout) or an MCAP session."""
     if fmt == "mcap" or (fmt == "auto" and str(path).endswith(".mcap")):
-        from adapters.mcap_session import read_session
+        from wrenchd.adapters.mcap_session import read_session
         return read_session(path).joint_states
-    from adapters.csv_psm import read_psm_csv
+    from wrenchd.adapters.csv_psm import read_psm_csv
     if fmt not in ("auto", "wpi", "paper"):
         raise DataError(f"--format must be one of {FORMATS}, got {fmt!r}")
     return read_psm_csv(path, fmt, rate_hz=rate_hz)
 
 
 def _cmd_identify(args: argparse.Namespace) -> int:
-    from models.identification.free_motion import identify_free_motion
-    from models.physics.model import PhysicsModel
+    from wrenchd.models.identification.free_motion import identify_free_motion
+    from wrenchd.models.physics.model import PhysicsModel
 
     js = read_measured(args.measured, args.format, args.rate)
     nominal = PhysicsModel.load(args.nominal) if args.nominal else None
@@ -53,9 +53,9 @@ def _cmd_identify(args: argparse.Namespace) -> int:
 
 
 def _cmd_discrepancy(args: argparse.Namespace) -> int:
-    from models.discrepancy.workflow import run_discrepancy
-    from models.physics.model import PhysicsModel
-    from service.discrepancy_report import write_json, write_report
+    from wrenchd.models.discrepancy.workflow import run_discrepancy
+    from wrenchd.models.physics.model import PhysicsModel
+    from wrenchd.service.discrepancy_report import write_json, write_report
 
     model = PhysicsModel.load(args.model)
     js = read_measured(args.measured, args.format, args.rate)
@@ -80,14 +80,14 @@ def _cmd_discrepancy(args: argparse.Namespace) -> int:
 
 
 def _cmd_sweep(args: argparse.Namespace) -> int:
-    from service.discrepancy_studies import hidden_effect_sweep
+    from wrenchd.service.discrepancy_studies import hidden_effect_sweep
 
     return hidden_effect_sweep(Path(args.out), args.seeds, args.duration, args.pairs_seeds,
                                args.effects, args.none_seeds)
 
 
 def _cmd_real(args: argparse.Namespace) -> int:
-    from service.discrepancy_studies import real_data_study
+    from wrenchd.service.discrepancy_studies import real_data_study
 
     return real_data_study(Path(args.data), Path(args.out))
 

@@ -17,8 +17,8 @@ from typing import Any
 
 import numpy as np
 
-from models.discrepancy.workflow import DiscrepancyResult
-from models.series import JOINT_NAMES
+from wrenchd.models.discrepancy.workflow import DiscrepancyResult
+from wrenchd.models.series import JOINT_NAMES
 
 UNITS = ("N m", "N m", "N", "N m", "N m", "N m")
 AGAINST = {"coulomb_friction": "velocity", "viscous_friction": "velocity",

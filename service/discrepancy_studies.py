@@ -2,7 +2,7 @@
 
 * :func:`hidden_effect_sweep`: for every effect free motion can reveal, many seeds of a
   simulated recording with that effect hidden (random magnitude in its realistic range, see
-  :mod:`service.hidden_effects`); recall (named first, parameters within tolerance, held-out
+  :mod:`wrenchd.service.hidden_effects`); recall (named first, parameters within tolerance, held-out
   gap shrunk >= 50 %), false positives with nothing hidden, and pairs of hidden effects.
 * :func:`real_data_study`: identify on the WPI ``one_no_weight.csv``, discrepancy against
   ``one_105g_parallel.csv`` and ``one_205g_parallel.csv``.
@@ -19,9 +19,9 @@ from typing import Any
 
 import numpy as np
 
-from models.discrepancy.workflow import run_discrepancy
-from service.hidden_effects import HIDDEN_EFFECTS, MIN_SHRINK, PAIRS, TOLERANCE, judge, make_case
-from service.replay_output import _finite
+from wrenchd.models.discrepancy.workflow import run_discrepancy
+from wrenchd.service.hidden_effects import HIDDEN_EFFECTS, MIN_SHRINK, PAIRS, TOLERANCE, judge, make_case
+from wrenchd.service.replay_output import _finite
 
 
 def _run_case(hidden: tuple[str, ...], seed: int, duration: float) -> dict[str, Any]:
@@ -155,7 +155,7 @@ LOADS_G = {"one_105g_parallel.csv": 105.0, "one_205g_parallel.csv": 205.0}
 def _per_joint_load(res, direction: np.ndarray) -> list[float]:
     """Load [kg] fitted on joints 1 and 2 separately: payload column along ``direction``
     (unit vector of ``m c`` in link 2, lever of the library default) plus a constant."""
-    from models.physics.effects.payload import PayloadParams, point_mass_parameters
+    from wrenchd.models.physics.effects.payload import PayloadParams, point_mass_parameters
 
     lever = float(np.linalg.norm(PayloadParams().position_m))
     y = res.updated_model.robot.regressor(res.q, res.dq, res.ddq)[:, :, 10:20]
@@ -170,9 +170,9 @@ def _per_joint_load(res, direction: np.ndarray) -> list[float]:
 
 def real_data_study(data: Path, out: Path) -> int:
     """Identify on ``one_no_weight.csv``, discrepancy on the loaded recordings; summary.md."""
-    from adapters.csv_psm import read_psm_csv
-    from models.identification.free_motion import identify_free_motion
-    from service.discrepancy_report import write_json, write_report
+    from wrenchd.adapters.csv_psm import read_psm_csv
+    from wrenchd.models.identification.free_motion import identify_free_motion
+    from wrenchd.service.discrepancy_report import write_json, write_report
 
     out.mkdir(parents=True, exist_ok=True)
     base = read_psm_csv(data / "one_no_weight.csv")

@@ -9,9 +9,9 @@ import time
 
 import numpy as np
 
-from adapters.messages import decode_wrench
-from adapters.zenoh_io import ZenohConfig, open_session
-from models.errors import DataError
+from wrenchd.adapters.messages import decode_wrench
+from wrenchd.adapters.zenoh_io import ZenohConfig, open_session
+from wrenchd.models.errors import DataError
 
 DEFAULT_CONNECT = "tcp/127.0.0.1:7447"
 

@@ -28,7 +28,7 @@ drift                  Coulomb friction wear, linear: fc grows by U(30, 100) % o
 =====================  ==========================================================================
 
 Not tested: ``external_contact`` (not free motion) and ``inertial_delta`` (the identified rigid
-body, never a candidate); see :data:`models.discrepancy.candidates.NOT_CANDIDATES`.
+body, never a candidate); see :data:`wrenchd.models.discrepancy.candidates.NOT_CANDIDATES`.
 """
 
 from __future__ import annotations
@@ -39,14 +39,14 @@ from typing import Any
 
 import numpy as np
 
-from adapters.sim.scenarios import FREE_SPACE_EFFECTS, FREE_SPACE_WORKSPACE
-from adapters.sim.sensors import SensorConfig
-from adapters.sim.simulator import simulate
-from adapters.sim.trajectory import FourierTrajectory
-from models.discrepancy.workflow import DiscrepancyResult, excess_shrink
-from models.physics.effects import EFFECTS
-from models.physics.model import PhysicsModel
-from models.series import Session
+from wrenchd.adapters.sim.scenarios import FREE_SPACE_EFFECTS, FREE_SPACE_WORKSPACE
+from wrenchd.adapters.sim.sensors import SensorConfig
+from wrenchd.adapters.sim.simulator import simulate
+from wrenchd.adapters.sim.trajectory import FourierTrajectory
+from wrenchd.models.discrepancy.workflow import DiscrepancyResult, excess_shrink
+from wrenchd.models.physics.effects import EFFECTS
+from wrenchd.models.physics.model import PhysicsModel
+from wrenchd.models.series import Session
 
 HIDDEN_EFFECTS = ("coulomb_friction", "viscous_friction", "stribeck_friction", "joint_offset",
                   "spring", "seal_friction", "body_wall", "payload_mass", "cable_coupling",

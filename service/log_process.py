@@ -5,9 +5,9 @@ daemon's CPU per sample (measured with ``wrenchd bench service``: 832 -> 721 us 
 without the log), all of it under the daemon's GIL, which the estimating thread waits for.
 :class:`LogWriterProcess` keeps only an append per record there: a sender thread hands the
 queued records over every ``interval_s`` as one pickled batch of plain values (bytes, or the
-name of a formatter in :data:`adapters.mcap_log.FORMATTERS` with its arguments as lists:
+name of a formatter in :data:`wrenchd.adapters.mcap_log.FORMATTERS` with its arguments as lists:
 ~1 us per sample to pickle, against ~17 us for NumPy arrays), and the writer process formats
-them and writes the arm's :class:`~adapters.mcap_log.McapLog` (flushed every
+them and writes the arm's :class:`~wrenchd.adapters.mcap_log.McapLog` (flushed every
 ``flush_interval_s``, rotated, never fatal, as before).
 
 Crash safety improves too: if the daemon dies (even ``kill -9``), the writer reads the end of
@@ -34,8 +34,8 @@ from collections import deque
 from pathlib import Path
 from typing import Any
 
-from adapters.mcap_log import LogConfig, McapLog, Payload, format_record
-from service.threads import normal_class, normal_scheduling
+from wrenchd.adapters.mcap_log import LogConfig, McapLog, Payload, format_record
+from wrenchd.service.threads import normal_class, normal_scheduling
 
 #: how long close() waits for the writer to finish its files [s]
 CLOSE_TIMEOUT_S = 30.0
@@ -176,7 +176,7 @@ class LogWriterProcess:
     # -- the daemon's side ------------------------------------------------------------------
     def put(self, log: McapLog, topic: str, stamp_ns: int, payload: Payload) -> None:
         """Queue one record (cheap: an append). ``payload``: bytes, or ``(formatter name,
-        args)`` made into bytes by the writer (:func:`adapters.mcap_log.format_record`)."""
+        args)`` made into bytes by the writer (:func:`wrenchd.adapters.mcap_log.format_record`)."""
         if not log.config.enabled:
             return
         i = self._index[id(log)]

@@ -43,15 +43,15 @@ import numpy as np
 import torch
 from pydantic import BaseModel, ConfigDict, Field
 
-from adapters.messages import JointStateMsg
-from models.drift_detector import DriftConfig, ResidualDriftDetector
-from models.errors import ConfigError, DataError
-from models.estimator.correction import Corr, CorrConfig
-from models.estimator.estimator import EstimatorConfig, TwoStepEstimator
-from models.estimator.free_space import FreeSpaceModel
-from models.gate import FreeMotionGate, GateConfig, GateDecision
-from models.series import N_JOINTS
-from service.adaptation import Adapter, AdaptationConfig, RoundResult, normalisation_of
+from wrenchd.adapters.messages import JointStateMsg
+from wrenchd.models.drift_detector import DriftConfig, ResidualDriftDetector
+from wrenchd.models.errors import ConfigError, DataError
+from wrenchd.models.estimator.correction import Corr, CorrConfig
+from wrenchd.models.estimator.estimator import EstimatorConfig, TwoStepEstimator
+from wrenchd.models.estimator.free_space import FreeSpaceModel
+from wrenchd.models.gate import FreeMotionGate, GateConfig, GateDecision
+from wrenchd.models.series import N_JOINTS
+from wrenchd.service.adaptation import Adapter, AdaptationConfig, RoundResult, normalisation_of
 
 POLICIES = ("gated", "ungated", "frozen", "drift-triggered", "periodic-reset")
 
@@ -655,7 +655,7 @@ class ArmPipeline:
         """An announced set-up change (the insufflator's pressure set differently, a port
         moved) at sample time ``t`` [s] (None: the last estimated sample's): adaptation gets
         eager as after a drift, and the adapter carries its buffer over to the new set-up
-        (:meth:`service.adaptation.Adapter.on_setup_change`). ``detail`` (JSON values) goes
+        (:meth:`wrenchd.service.adaptation.Adapter.on_setup_change`). ``detail`` (JSON values) goes
         into the ``setup_change`` event. A time that is not finite, or more than
         ``validation.setup_ahead_s`` after the latest sample, is refused with an error
         event."""

@@ -1,9 +1,9 @@
 """Adaptation policies for replay and comparison: a name, a description and a config change.
 
 A policy decides which samples reach the lifelong adaptation and when it may run. The
-mechanisms live in :class:`service.pipeline.ArmPipeline` (the daemon's own code, so a replay
+mechanisms live in :class:`wrenchd.service.pipeline.ArmPipeline` (the daemon's own code, so a replay
 proves something about the daemon); a :class:`Policy` here selects one of them by name and
-may tune any part of the :class:`~service.pipeline.PipelineConfig` (gate bounds, delay line,
+may tune any part of the :class:`~wrenchd.service.pipeline.PipelineConfig` (gate bounds, delay line,
 round interval, ...).
 
 Built in:
@@ -19,7 +19,7 @@ Built in:
 
 Writing your own (in your code, before calling replay or compare)::
 
-    from service.policies import Policy, register_policy
+    from wrenchd.service.policies import Policy, register_policy
 
     register_policy(Policy(
         name="gated-cautious",
@@ -38,9 +38,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
-from models.errors import ConfigError
-from service.pipeline import POLICIES as MECHANISMS
-from service.pipeline import PipelineConfig
+from wrenchd.models.errors import ConfigError
+from wrenchd.service.pipeline import POLICIES as MECHANISMS
+from wrenchd.service.pipeline import PipelineConfig
 
 
 def _merge(base: dict[str, Any], extra: dict[str, Any]) -> dict[str, Any]:
@@ -60,7 +60,7 @@ class Policy:
     Attributes:
         name: what users type (``--policy NAME``).
         description: one line for tables and ``--help``.
-        mechanism: the pipeline's behaviour it uses, one of ``service.pipeline.POLICIES``.
+        mechanism: the pipeline's behaviour it uses, one of ``wrenchd.service.pipeline.POLICIES``.
         overrides: nested dict merged into the pipeline config (``{"gate": {...}}``).
     """
 

@@ -3,10 +3,10 @@
     wrenchd real-data --train ../shared/data/wpi-psm/one_no_weight.csv \\
         --test ../shared/data/wpi-psm/two.csv --out reports/real-data-step1.md
 
-Trains the step-1 networks (:func:`models.estimator.training.fit_free_space`, a shortened
+Trains the step-1 networks (:func:`wrenchd.models.estimator.training.fit_free_space`, a shortened
 recipe; the last 20 % of the training file selects the best epoch) on one WPI recording,
 identifies a rigid-body + friction model by least squares on the same file
-(:mod:`models.physics.least_squares`), and reports the per-joint torque RMSE of both on the
+(:mod:`wrenchd.models.physics.least_squares`), and reports the per-joint torque RMSE of both on the
 test recording (another trajectory), with a JSON copy of the numbers beside the Markdown.
 """
 
@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from models.series import JOINT_NAMES
+from wrenchd.models.series import JOINT_NAMES
 
 #: Shortened step-1 recipe for a 30 s recording (the paper trains 1000 epochs on far more).
 REAL_RECIPE = {"epochs": 150, "lr": 3e-3, "lr_halving_epochs": 50, "window": 50,
@@ -31,9 +31,9 @@ UNITS = ("N m", "N m", "N", "N m", "N m", "N m")
 def evaluate(train_csv: str, test_csv: str, seed: int = 0, epochs: int | None = None
              ) -> dict[str, Any]:
     """Train both models on ``train_csv``; RMSEs [N m; N] per joint on both files."""
-    from adapters.csv_psm import read_wpi_csv
-    from models.estimator.training import fit_free_space, recipe
-    from models.physics.least_squares import RigidBodyFrictionModel, smoothed_acceleration
+    from wrenchd.adapters.csv_psm import read_wpi_csv
+    from wrenchd.models.estimator.training import fit_free_space, recipe
+    from wrenchd.models.physics.least_squares import RigidBodyFrictionModel, smoothed_acceleration
 
     train, _ = read_wpi_csv(train_csv)
     test, _ = read_wpi_csv(test_csv)

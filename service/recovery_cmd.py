@@ -4,7 +4,7 @@ Simulates ``insufflation-change`` (the pressure steps 12 -> 20 mmHg at 40 % of t
 for each seed, replays it through the daemon's pipeline once per ``--set`` (a JSON object of
 ``PipelineConfig`` overrides merged into the defaults; none: the defaults), and prints per
 seed the free-motion force RMSE before the change and after 60 s of free motion
-(:func:`service.replay_metrics.recovery_levels`), their ratio (the issue asks for <= 1.10),
+(:func:`wrenchd.service.replay_metrics.recovery_levels`), their ratio (the issue asks for <= 1.10),
 how many samples offered to training were truly in contact (the issue asks for 0) and what
 share of the truly free motion in the minute after the change was offered; then per setting
 the mean ratio, how many seeds are within 1.10 and the worst.
@@ -22,9 +22,9 @@ their ratio, ``excess_bins``): how the gap evolves, where the post window is one
 
 With ``--announce`` the step is announced to the pipeline at its time, as the daemon's
 ``setup`` key would be told by the insufflator or the OR console
-(:meth:`service.pipeline.ArmPipeline.setup_change`): adaptation gets eager and the adapter
+(:meth:`wrenchd.service.pipeline.ArmPipeline.setup_change`): adaptation gets eager and the adapter
 carries its buffer over to the new body wall stiffness
-(:mod:`models.body_wall_tracker`).
+(:mod:`wrenchd.models.body_wall_tracker`).
 
 Example::
 
@@ -41,7 +41,7 @@ import json
 import time
 from pathlib import Path
 
-from models.errors import ConfigError
+from wrenchd.models.errors import ConfigError
 
 SCENARIO = "insufflation-change"
 SETTLED_SCENARIO = "insufflation-high"     # the same seeds at the new pressure throughout
@@ -51,8 +51,8 @@ SETTLE_S = 60.0                          # free motion after the change before "
 
 
 def _settings(texts: list[str]):
-    from service.pipeline import PipelineConfig
-    from service.policies import _merge
+    from wrenchd.service.pipeline import PipelineConfig
+    from wrenchd.service.policies import _merge
 
     out = []
     for text in texts or ["{}"]:
@@ -87,12 +87,12 @@ def run_recovery(seeds: list[int], settings: list[str], duration_s: float = 220.
                           "the change (contacts take some of it)")
     import numpy as np
 
-    from adapters.sim.scenarios import run_scenario
-    from service.daemon import load_free_space
-    from service.replay import replay
-    from service.replay_metrics import free_error_series, recovery_levels
-    from service.replay_source import announced_changes
-    from service.threads import one_compute_thread
+    from wrenchd.adapters.sim.scenarios import run_scenario
+    from wrenchd.service.daemon import load_free_space
+    from wrenchd.service.replay import replay
+    from wrenchd.service.replay_metrics import free_error_series, recovery_levels
+    from wrenchd.service.replay_source import announced_changes
+    from wrenchd.service.threads import one_compute_thread
 
     one_compute_thread()
     configs = _settings(settings)

@@ -1,13 +1,13 @@
 """Replay a session through the daemon's pipeline in simulated time, fast and deterministic.
 
-The samples go through :meth:`service.pipeline.ArmPipeline.process`, the very method the
+The samples go through :meth:`wrenchd.service.pipeline.ArmPipeline.process`, the very method the
 daemon calls (validation, gate, drift, policy, delay line, adaptation, model swaps), in
 simulated time; the session's bounds are checked in one vectorised pass first, and
 ``process`` skips its per-sample bounds check for the samples within them
 (``checked=True``; the others it refuses as usual). The adaptation runs in a forked worker by default
-(:class:`~service.replay_worker.WorkerAdaptation`: a round's net serves ``result_delay_s``
+(:class:`~wrenchd.service.replay_worker.WorkerAdaptation`: a round's net serves ``result_delay_s``
 of sample time after the round fell due, as in the daemon) or inline
-(:class:`~service.pipeline.InlineAdaptation`: a round runs at the sample at which it falls
+(:class:`~wrenchd.service.pipeline.InlineAdaptation`: a round runs at the sample at which it falls
 due and its model is used from the next sample on); either way the outcome depends only on
 the session, the config, the seed and the delay.
 
@@ -35,16 +35,16 @@ from typing import Any, Callable, Sequence
 import numpy as np
 import torch
 
-from models.errors import ConfigError
-from models.estimator.estimator import EstimatorOutput, TwoStepEstimator
-from models.estimator.features import segment_starts
-from models.estimator.free_space import FreeSpaceModel
-from models.estimator.wrench import damped_wrench
-from models.series import N_JOINTS, Session
-from service.adaptation import normalisation_of
-from service.pipeline import ArmPipeline, Event, PipelineConfig
-from service.replay_source import joint_state_messages
-from service.replay_worker import WorkerAdaptation
+from wrenchd.models.errors import ConfigError
+from wrenchd.models.estimator.estimator import EstimatorOutput, TwoStepEstimator
+from wrenchd.models.estimator.features import segment_starts
+from wrenchd.models.estimator.free_space import FreeSpaceModel
+from wrenchd.models.estimator.wrench import damped_wrench
+from wrenchd.models.series import N_JOINTS, Session
+from wrenchd.service.adaptation import normalisation_of
+from wrenchd.service.pipeline import ArmPipeline, Event, PipelineConfig
+from wrenchd.service.replay_source import joint_state_messages
+from wrenchd.service.replay_worker import WorkerAdaptation
 
 
 #: Rows per torch step-1 call, in order (the last repeats): small first, so the replay can
@@ -312,21 +312,21 @@ def replay(session: Session, free_space: FreeSpaceModel, config: PipelineConfig 
     """Run ``session`` through a fresh :class:`ArmPipeline` in simulated time.
 
     Args:
-        session: joint states (truth is not used here; see :mod:`service.replay_metrics`).
+        session: joint states (truth is not used here; see :mod:`wrenchd.service.replay_metrics`).
         free_space: the step-1 model.
-        config: the pipeline config (a policy's, :mod:`service.policies`).
+        config: the pipeline config (a policy's, :mod:`wrenchd.service.policies`).
         policy: the policy's name, recorded in the result.
         batched: use :class:`BatchedEstimator` (same numbers, several times faster).
         step1: the batched step 1, ``"torch"`` or ``"kernel"`` (see :class:`BatchedEstimator`).
         adaptation: ``"worker"``: rounds in a forked process, their nets serving from
             ``result_delay_s`` of sample time after they fell due
-            (:class:`~service.replay_worker.WorkerAdaptation`); ``"inline"``: each round at
+            (:class:`~wrenchd.service.replay_worker.WorkerAdaptation`); ``"inline"``: each round at
             its sample, serving from the next one.
         result_delay_s: see ``adaptation`` [s].
         pipeline_hook: called with the pipeline before the first sample (tests, tracing).
         setup_changes: set-up changes to announce, ``(time [s], detail)`` each, as the daemon's
             ``setup`` key would (:meth:`ArmPipeline.setup_change`): each before the first
-            sample at or after its time (:func:`service.replay_source.announced_changes`).
+            sample at or after its time (:func:`wrenchd.service.replay_source.announced_changes`).
     Returns:
         the :class:`ReplayResult`.
     """

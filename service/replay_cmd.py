@@ -1,7 +1,7 @@
 """``wrenchd replay`` and ``wrenchd compare``; ``wrenchd bench replay`` runs :func:`run_replay_bench`.
 
 SESSION is an ``.mcap`` (simulated or a daemon log), ``sim:SCENARIO:DURATION[:SEED]`` or a
-real ``.csv`` (see :mod:`service.replay_source`). ``--config`` is a TOML or JSON file with
+real ``.csv`` (see :mod:`wrenchd.service.replay_source`). ``--config`` is a TOML or JSON file with
 the pipeline's settings: a ``PipelineConfig`` table, or a daemon settings file (its first
 arm's ``pipeline``). ``--seed`` sets the adaptation's seed. Torch runs on one thread, so a
 replay repeats bit for bit.
@@ -15,12 +15,12 @@ import os
 import time
 from pathlib import Path
 
-from models.errors import ConfigError
+from wrenchd.models.errors import ConfigError
 
 
 def load_pipeline_config(path: str | None, seed: int | None = None):
     """The base ``PipelineConfig`` of a replay (see the module docstring)."""
-    from service.pipeline import PipelineConfig
+    from wrenchd.service.pipeline import PipelineConfig
 
     data: dict = {}
     if path:
@@ -44,20 +44,20 @@ def load_pipeline_config(path: str | None, seed: int | None = None):
 
 
 def _setup() -> None:
-    """One thread for torch and for NumPy's BLAS (see :mod:`service.threads`)."""
-    from service.threads import one_compute_thread
+    """One thread for torch and for NumPy's BLAS (see :mod:`wrenchd.service.threads`)."""
+    from wrenchd.service.threads import one_compute_thread
 
     one_compute_thread()
 
 
 def _cmd_replay(args: argparse.Namespace) -> int:
     _setup()
-    from service.daemon import load_free_space
-    from service.policies import get_policy
-    from service.replay import replay
-    from service.replay_metrics import metrics_markdown, replay_metrics
-    from service.replay_output import _finite, write_replay_mcap
-    from service.replay_source import announced_changes, load_session
+    from wrenchd.service.daemon import load_free_space
+    from wrenchd.service.policies import get_policy
+    from wrenchd.service.replay import replay
+    from wrenchd.service.replay_metrics import metrics_markdown, replay_metrics
+    from wrenchd.service.replay_output import _finite, write_replay_mcap
+    from wrenchd.service.replay_source import announced_changes, load_session
 
     config = get_policy(args.policy).configure(load_pipeline_config(args.config, args.seed))
     session = load_session(args.session)
@@ -80,8 +80,8 @@ def _cmd_replay(args: argparse.Namespace) -> int:
 
 def _cmd_compare(args: argparse.Namespace) -> int:
     _setup()
-    from service.compare import run_compare
-    from service.daemon import load_free_space
+    from wrenchd.service.compare import run_compare
+    from wrenchd.service.daemon import load_free_space
 
     policies = [p for p in args.policies.split(",") if p]
     sessions = [s for part in args.sessions for s in part.split(",") if s]
@@ -102,11 +102,11 @@ def run_replay_bench(json_path: str | None, duration_s: float = 120.0,
     """
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     _setup()
-    from adapters.sim.scenarios import run_scenario
-    from models.estimator.pretrained import load_pretrained
-    from service.pipeline import PipelineConfig
-    from service.policies import get_policy
-    from service.replay import replay
+    from wrenchd.adapters.sim.scenarios import run_scenario
+    from wrenchd.models.estimator.pretrained import load_pretrained
+    from wrenchd.service.pipeline import PipelineConfig
+    from wrenchd.service.policies import get_policy
+    from wrenchd.service.replay import replay
 
     session = run_scenario("insufflation-change", duration_s, seed)
     fs = load_pretrained("seal")
@@ -139,13 +139,13 @@ def run_replay_bench(json_path: str | None, duration_s: float = 120.0,
 
 
 def _policy_names() -> list[str]:
-    from service.policies import policy_names
+    from wrenchd.service.policies import policy_names
 
     return policy_names()
 
 
 def register(sub) -> None:
-    from service.cli import LazyChoices
+    from wrenchd.service.cli import LazyChoices
 
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("--config", help="pipeline settings (TOML/JSON; a daemon file works)")

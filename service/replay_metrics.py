@@ -22,9 +22,9 @@ from typing import Any
 
 import numpy as np
 
-from models.series import Session
-from service.replay import ReplayResult
-from service.replay_source import drift_onsets
+from wrenchd.models.series import Session
+from wrenchd.service.replay import ReplayResult
+from wrenchd.service.replay_source import drift_onsets
 
 PRE_S, ROLL_S, RECOVER_FRACTION = 30.0, 5.0, 0.10
 

@@ -1,7 +1,7 @@
 """A replay's estimates and events as MCAP (the daemon log's topics and schemas).
 
 ``/wrenchd/estimate`` per estimated sample and ``/wrenchd/events``, JSON with the JSON
-Schemas of :mod:`adapters.mcap_log`; metadata ``wrenchd.replay`` holds the policy, the
+Schemas of :mod:`wrenchd.adapters.mcap_log`; metadata ``wrenchd.replay`` holds the policy, the
 pipeline config and the source. No wall-clock time is written: equal replays give equal
 bytes.
 """
@@ -14,9 +14,9 @@ import os
 import numpy as np
 from mcap.writer import CompressionType, Writer
 
-from adapters.mcap_log import ESTIMATE_SCHEMA, EVENT_SCHEMA, TOPIC_ESTIMATE, TOPIC_EVENTS
-from models.errors import AdapterError
-from service.replay import ReplayResult
+from wrenchd.adapters.mcap_log import ESTIMATE_SCHEMA, EVENT_SCHEMA, TOPIC_ESTIMATE, TOPIC_EVENTS
+from wrenchd.models.errors import AdapterError
+from wrenchd.service.replay import ReplayResult
 
 _V = "[" + ",".join(["%.10g"] * 6) + "]"
 _TEMPLATE = ('{"header":{"stamp":{"sec":%d,"nanosec":%d},"frame_id":"psm_base"},'

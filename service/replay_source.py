@@ -8,7 +8,7 @@
 ``sim:SCENARIO:DURATION[:SEED]``   simulate now, e.g. ``sim:insufflation-change:300:3``
                                    (duration in s, seed default 0); truth included
 ``path/to/file.csv``               a real recording, WPI (21 columns, 200 Hz) or the paper's
-                                   19-column layout (:mod:`adapters.csv_psm`); no truth
+                                   19-column layout (:mod:`wrenchd.adapters.csv_psm`); no truth
 =================================  ==========================================================
 """
 
@@ -18,9 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
-from adapters.messages import JointStateMsg
-from models.errors import ConfigError
-from models.series import JointStates, Session
+from wrenchd.adapters.messages import JointStateMsg
+from wrenchd.models.errors import ConfigError
+from wrenchd.models.series import JointStates, Session
 
 
 def load_session(spec: str) -> Session:
@@ -40,19 +40,19 @@ def load_session(spec: str) -> Session:
         except ValueError:
             raise ConfigError(f"simulator spec {spec!r}: duration must be a number [s] and "
                               f"seed an integer") from None
-        from adapters.sim.scenarios import run_scenario
+        from wrenchd.adapters.sim.scenarios import run_scenario
 
         session = run_scenario(parts[1], duration, seed)
         return Session(session.joint_states, session.truth,
                        {**session.metadata, "source": spec})
     suffix = Path(spec).suffix.lower()
     if suffix == ".mcap":
-        from adapters.mcap_session import read_session
+        from wrenchd.adapters.mcap_session import read_session
 
         session = read_session(spec)
         return Session(session.joint_states, session.truth, {**session.metadata, "source": spec})
     if suffix == ".csv":
-        from adapters.csv_psm import read_psm_csv
+        from wrenchd.adapters.csv_psm import read_psm_csv
 
         return Session(read_psm_csv(spec), None, {"source": spec, "csv": True})
     raise ConfigError(f"session {spec!r}: expected a .mcap or .csv file or "
@@ -116,7 +116,7 @@ def logged_setup_changes(path: str) -> list[tuple[float, dict]]:
     from mcap.exceptions import McapError
     from mcap.reader import NonSeekingReader
 
-    from adapters.mcap_log import TOPIC_EVENTS
+    from wrenchd.adapters.mcap_log import TOPIC_EVENTS
 
     out = []
     with open(path, "rb") as f:

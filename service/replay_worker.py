@@ -1,6 +1,6 @@
 """Replay's adaptation in a worker process, in simulated time, deterministic.
 
-Inline adaptation (:class:`service.pipeline.InlineAdaptation`) runs each round at the sample
+Inline adaptation (:class:`wrenchd.service.pipeline.InlineAdaptation`) runs each round at the sample
 where it falls due, and the pipeline waits for it: the rounds, not the estimates, then set
 the pace of a replay. :class:`WorkerAdaptation` runs the very same :class:`Adapter` in a
 forked process, on the second core, while the pipeline goes on estimating; as in the daemon,
@@ -27,8 +27,8 @@ from typing import Any, Callable
 
 import numpy as np
 
-from models.series import N_JOINTS
-from service.adaptation import AdaptationConfig, RoundResult
+from wrenchd.models.series import N_JOINTS
+from wrenchd.service.adaptation import AdaptationConfig, RoundResult
 
 CHUNK_S = 0.25          # the pipeline sends its calls at least every this much sample time [s]
 
@@ -40,7 +40,7 @@ OFFER_ROWS, TICK, DRIFT, RESET, SETUP = 0, 1, 2, 3, 4
 
 def _serve(conn, config: dict[str, Any], normalisation: dict[str, np.ndarray] | None) -> None:
     """Worker main: replay the pipeline's calls on an Adapter; answer rounds and progress."""
-    from service.adaptation import Adapter
+    from wrenchd.service.adaptation import Adapter
 
     adapter = Adapter(AdaptationConfig(**config), normalisation=normalisation)
     try:
@@ -76,7 +76,7 @@ def _serve(conn, config: dict[str, Any], normalisation: dict[str, np.ndarray] | 
 
 
 class WorkerAdaptation:
-    """:class:`~service.pipeline.AdaptationBackend` for replay with the Adapter in a forked
+    """:class:`~wrenchd.service.pipeline.AdaptationBackend` for replay with the Adapter in a forked
     process (see the module docstring).
 
     Args:

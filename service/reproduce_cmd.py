@@ -5,7 +5,7 @@
 
 Writes ``results.json`` (every number), ``force-rmse-vs-length.png`` (matplotlib, Agg) and
 ``README.md`` (the three tables, the oracle ratios, the fast Corr recipe beside the paper's).
-The experiment itself is :mod:`service.reproduction`.
+The experiment itself is :mod:`wrenchd.service.reproduction`.
 """
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ def plot(results: dict[str, Any], path: Path) -> None:
     """Mean force RMSE against trocar training length, one line per configuration."""
     import matplotlib
 
-    from service.reproduction import CONFIGS
+    from wrenchd.service.reproduction import CONFIGS
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -63,7 +63,7 @@ def plot(results: dict[str, Any], path: Path) -> None:
 
 def markdown(results: dict[str, Any], command: str, wall_s: float) -> str:
     """The report text (tables from ``results``; prose around them)."""
-    from service.reproduction import AXES, CONFIGS, TRAINED
+    from wrenchd.service.reproduction import AXES, CONFIGS, TRAINED
 
     cfg = results["config"]
     lengths = [str(float(L)) for L in cfg["lengths_s"]]
@@ -157,8 +157,8 @@ def verdict(results: dict[str, Any]) -> str:
 
 
 def _pretrained_info() -> dict[str, Any]:
-    from models.estimator.checkpoint import load_checkpoint
-    from models.estimator.pretrained import pretrained_path
+    from wrenchd.models.estimator.checkpoint import load_checkpoint
+    from wrenchd.models.estimator.pretrained import pretrained_path
 
     info = {}
     for name in ("base", "seal"):
@@ -172,8 +172,8 @@ def _pretrained_info() -> dict[str, Any]:
 def _cmd_reproduce(args: argparse.Namespace) -> int:
     import torch
 
-    from models.estimator.pretrained import load_pretrained
-    from service.reproduction import QUICK, ReproductionConfig, run_reproduction
+    from wrenchd.models.estimator.pretrained import load_pretrained
+    from wrenchd.service.reproduction import QUICK, ReproductionConfig, run_reproduction
 
     if args.threads:
         torch.set_num_threads(args.threads)

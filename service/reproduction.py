@@ -33,13 +33,13 @@ import numpy as np
 import torch
 from pydantic import BaseModel, ConfigDict, Field
 
-from adapters.sim.scenarios import run_scenario
-from models.estimator.correction import Corr, Xfer
-from models.estimator.free_space import FreeSpaceModel
-from models.estimator.training import (fit_corr, fit_free_space, fit_xfer, predict_segments,
+from wrenchd.adapters.sim.scenarios import run_scenario
+from wrenchd.models.estimator.correction import Corr, Xfer
+from wrenchd.models.estimator.free_space import FreeSpaceModel
+from wrenchd.models.estimator.training import (fit_corr, fit_free_space, fit_xfer, predict_segments,
                                        recipe)
-from models.estimator.wrench import WrenchMap
-from models.series import Session
+from wrenchd.models.estimator.wrench import WrenchMap
+from wrenchd.models.series import Session
 
 CONFIGS = ("Troc", "Base", "Seal", "Base+Corr", "Seal+Corr", "Seal+Xfer")
 TRAINED = ("Troc", "Base+Corr", "Seal+Corr", "Seal+Xfer")

@@ -17,12 +17,12 @@ import signal
 import time
 from pathlib import Path
 
-from adapters.mcap_session import SessionWriter
-from adapters.sim.scenarios import run_scenario
-from adapters.sim.simulator import SimulatorConfig
-from adapters.messages import encode_joint_state, encode_setup_change, stamp_ns_of
-from adapters.zenoh_io import ZenohConfig, open_session, wait_for_subscriber
-from service.replay_source import drift_onsets
+from wrenchd.adapters.mcap_session import SessionWriter
+from wrenchd.adapters.sim.scenarios import run_scenario
+from wrenchd.adapters.sim.simulator import SimulatorConfig
+from wrenchd.adapters.messages import encode_joint_state, encode_setup_change, stamp_ns_of
+from wrenchd.adapters.zenoh_io import ZenohConfig, open_session, wait_for_subscriber
+from wrenchd.service.replay_source import drift_onsets
 
 BLOCK_S = 120.0
 CONTACT_FREE_START_S = 60.0     # the daemon's default calibration_s

@@ -18,7 +18,7 @@ from __future__ import annotations
 import os
 from contextlib import contextmanager
 
-from models.errors import ConfigError
+from wrenchd.models.errors import ConfigError
 
 #: The real-time priority ``auto`` takes: low in the 1-99 range, under a robot controller's own.
 AUTO_REALTIME_PRIORITY = 10

@@ -3,7 +3,7 @@
 The config (TOML or JSON) is a :class:`TrainCommandConfig`::
 
     configuration = "base"            # base | troc | corr | xfer
-    recipe = "free-space"             # a name of models.estimator.training.RECIPES (default
+    recipe = "free-space"             # a name of wrenchd.models.estimator.training.RECIPES (default
                                       # per configuration: free-space, troc, corr, xfer)
     seed = 0                          # every random choice (weights, order, dropout)
     output = "sim-base.pt"
@@ -24,7 +24,7 @@ Relative paths (data, output, base checkpoint) are taken from the working direct
 Training runs on the CPU, or on a CUDA GPU when torch sees one (``--device`` overrides).
 The checkpoint carries the config, the format version, a description of the data and the
 validation score (the last ``val_fraction`` of every series, see
-:mod:`models.estimator.training`).
+:mod:`wrenchd.models.estimator.training`).
 """
 
 from __future__ import annotations
@@ -39,7 +39,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from models.errors import ConfigError
+from wrenchd.models.errors import ConfigError
 
 #: Default recipe of each configuration.
 DEFAULT_RECIPES = {"base": "free-space", "troc": "troc", "corr": "corr", "xfer": "xfer"}
@@ -119,17 +119,17 @@ def read_train_config(path: str | os.PathLike) -> TrainCommandConfig:
 def load_series(spec: SimulatedData | FileData):
     """The joint states of one data entry, and its description for the checkpoint."""
     if isinstance(spec, SimulatedData):
-        from adapters.sim.scenarios import run_scenario
+        from wrenchd.adapters.sim.scenarios import run_scenario
 
         session = run_scenario(spec.scenario, spec.duration_s, spec.seed)
         return session.joint_states, {"source": "simulator", **spec.model_dump()}
     path = Path(spec.path)
     if path.suffix.lower() == ".mcap":
-        from adapters.mcap_session import read_session
+        from wrenchd.adapters.mcap_session import read_session
 
         return read_session(path).joint_states, {"source": "mcap", "path": spec.path}
     if path.suffix.lower() == ".csv":
-        from adapters.csv_psm import read_psm_csv
+        from wrenchd.adapters.csv_psm import read_psm_csv
 
         return (read_psm_csv(path, rate_hz=spec.rate_hz),
                 {"source": "csv", "path": spec.path, "rate_hz": spec.rate_hz})
@@ -138,8 +138,8 @@ def load_series(spec: SimulatedData | FileData):
 
 def load_base(reference: str):
     """A step-1 model from a checkpoint path or ``pretrained:<name>``."""
-    from models.estimator.checkpoint import load_checkpoint
-    from models.estimator.pretrained import load_pretrained
+    from wrenchd.models.estimator.checkpoint import load_checkpoint
+    from wrenchd.models.estimator.pretrained import load_pretrained
 
     if reference.startswith("pretrained:"):
         return load_pretrained(reference.removeprefix("pretrained:"))
@@ -156,8 +156,8 @@ def train(config: TrainCommandConfig, output: str | None = None, device: str | N
     import torch
     from tqdm import tqdm
 
-    from models.estimator.checkpoint import save_result
-    from models.estimator.training import (fit_corr, fit_free_space, fit_xfer, recipe,
+    from wrenchd.models.estimator.checkpoint import save_result
+    from wrenchd.models.estimator.training import (fit_corr, fit_free_space, fit_xfer, recipe,
                                            training_device)
 
     train_config = recipe(config.recipe_name, **{**config.overrides, "seed": config.seed})

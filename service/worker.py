@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from service.adaptation import AdaptationConfig, RoundResult
+from wrenchd.service.adaptation import AdaptationConfig, RoundResult
 
 _BATCH_S = 0.2          # pipelines send their samples at least this often [s]
 _POLL_S = 0.02          # and look for round results at most this often [s]: polling the
@@ -40,9 +40,9 @@ def _run(inbox: mp.Queue, outbox: mp.Queue, configs: dict[str, dict[str, Any]],
     """Worker process main loop."""
     if cpus is not None:
         os.sched_setaffinity(0, cpus)
-    from models.estimator.checkpoint import save_checkpoint
-    from service.adaptation import Adapter
-    from service.threads import normal_scheduling, one_compute_thread
+    from wrenchd.models.estimator.checkpoint import save_checkpoint
+    from wrenchd.service.adaptation import Adapter
+    from wrenchd.service.threads import normal_scheduling, one_compute_thread
 
     one_compute_thread()          # a spawned process: NumPy's BLAS would start one per core
     # Ctrl-C in a terminal reaches the whole process group: the daemon stops this worker with
@@ -205,7 +205,7 @@ class _Rows:
 
 
 class ProcessAdaptation:
-    """:class:`~service.pipeline.AdaptationBackend` of one arm, backed by the worker process."""
+    """:class:`~wrenchd.service.pipeline.AdaptationBackend` of one arm, backed by the worker process."""
 
     def __init__(self, worker: WorkerProcess, arm: str) -> None:
         self.worker, self.arm = worker, arm

@@ -30,11 +30,11 @@ from typing import Any, Callable
 
 import numpy as np
 
-from models.errors import ConfigError
-from models.physics.model import PhysicsModel
-from models.series import Session
-from adapters.sim.simulator import SimulatorConfig, simulate
-from adapters.sim.trajectory import FourierTrajectory, Workspace
+from wrenchd.models.errors import ConfigError
+from wrenchd.models.physics.model import PhysicsModel
+from wrenchd.models.series import Session
+from wrenchd.adapters.sim.simulator import SimulatorConfig, simulate
+from wrenchd.adapters.sim.trajectory import FourierTrajectory, Workspace
 
 FREE_SPACE_WORKSPACE = Workspace(
     lower=(-1.2, -0.75, 0.03, -2.5, -1.2, -1.2),

@@ -17,11 +17,11 @@ from dataclasses import dataclass
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from models.errors import ConfigError
-from models.physics.model import PhysicsModel
-from models.series import GroundTruth, JointStates, Session
-from adapters.sim.sensors import SensorConfig, quantise, velocity_estimate
-from adapters.sim.trajectory import FourierTrajectory
+from wrenchd.models.errors import ConfigError
+from wrenchd.models.physics.model import PhysicsModel
+from wrenchd.models.series import GroundTruth, JointStates, Session
+from wrenchd.adapters.sim.sensors import SensorConfig, quantise, velocity_estimate
+from wrenchd.adapters.sim.trajectory import FourierTrajectory
 
 
 class SimulatorConfig(BaseModel):

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from models.series import N_JOINTS
+from wrenchd.models.series import N_JOINTS
 
 
 @dataclass(frozen=True)

@@ -39,13 +39,13 @@ from typing import Any, Callable
 
 import numpy as np
 
-from models.physics.effects.base import Motion
-from models.physics.effects.body_wall import BodyWall
-from models.physics.effects.coupling import CableCoupling
-from models.physics.effects.friction import SIGN_SMOOTHING, StribeckParams, smooth_sign
-from models.physics.effects.payload import PayloadParams, point_mass_parameters
-from models.physics.effects.seal import SEALED_JOINTS, SealParams
-from models.physics.model import PhysicsModel
+from wrenchd.models.physics.effects.base import Motion
+from wrenchd.models.physics.effects.body_wall import BodyWall
+from wrenchd.models.physics.effects.coupling import CableCoupling
+from wrenchd.models.physics.effects.friction import SIGN_SMOOTHING, StribeckParams, smooth_sign
+from wrenchd.models.physics.effects.payload import PayloadParams, point_mass_parameters
+from wrenchd.models.physics.effects.seal import SEALED_JOINTS, SealParams
+from wrenchd.models.physics.model import PhysicsModel
 
 #: Parameter a drift of each effect scales (the effect's level).
 DRIFT_PARAM = {
@@ -176,7 +176,7 @@ def bristle_state(x: np.ndarray, v: np.ndarray, z0: float, ratio: float, vs: flo
     With ``G = fc + fs_excess``, ``ratio = fs_excess / G`` and ``z0 = G / sigma0`` the
     presliding travel, the LuGre state normalised by ``z0`` relaxes per step towards
     ``sign(dx) g(v) / G``, ``g(v) / G = 1 - ratio + ratio exp(-(v/vs)^2)``, with exponent
-    ``|dx| / (z0 g(v) / G)`` (the integration of :mod:`~models.physics.effects.seal`), so the
+    ``|dx| / (z0 g(v) / G)`` (the integration of :mod:`~wrenchd.models.physics.effects.seal`), so the
     bristle force is ``G`` times this column, exactly, for given ``z0``, ``ratio`` and ``vs``.
     """
     dx = np.diff(x, prepend=x[:1])

@@ -39,7 +39,7 @@ import numpy as np
 import statsmodels.api as sm
 from sklearn.model_selection import KFold
 
-from models.discrepancy.candidates import Candidate
+from wrenchd.models.discrepancy.candidates import Candidate
 
 N_FOLDS = 5
 MIN_DELTA_BIC = 10.0          # "strong" on the Kass-Raftery scale

@@ -2,10 +2,10 @@
 
 1. **Find**: run the measured motion through the model; per-joint residual against the noise
    floor, where it concentrates, whiteness and correlation with the inputs
-   (:mod:`~models.discrepancy.residual`).
-2. **Name**: candidate effects (:mod:`~models.discrepancy.candidates`) tested by held-out BIC,
-   bootstrap stability and size (:mod:`~models.discrepancy.selection`).
-3. **Add**: the model plus the named effects (:func:`~models.discrepancy.candidates.merge_effects`).
+   (:mod:`~wrenchd.models.discrepancy.residual`).
+2. **Name**: candidate effects (:mod:`~wrenchd.models.discrepancy.candidates`) tested by held-out BIC,
+   bootstrap stability and size (:mod:`~wrenchd.models.discrepancy.selection`).
+3. **Add**: the model plus the named effects (:func:`~wrenchd.models.discrepancy.candidates.merge_effects`).
 4. **Gap**: held-out (out-of-fold) residual RMS per joint before and after.
 
 The JSON contract (:meth:`DiscrepancyResult.to_json`)::
@@ -30,12 +30,12 @@ from typing import Any
 
 import numpy as np
 
-from models.discrepancy.candidates import NOT_CANDIDATES, build_candidates, merge_effects
-from models.discrepancy.residual import find, noise_floor
-from models.discrepancy.selection import Named, Stacked, heldout_prediction, select
-from models.errors import DataError
-from models.identification.differentiation import smoothed_acceleration, zero_phase_velocity
-from models.physics.model import PhysicsModel
+from wrenchd.models.discrepancy.candidates import NOT_CANDIDATES, build_candidates, merge_effects
+from wrenchd.models.discrepancy.residual import find, noise_floor
+from wrenchd.models.discrepancy.selection import Named, Stacked, heldout_prediction, select
+from wrenchd.models.errors import DataError
+from wrenchd.models.identification.differentiation import smoothed_acceleration, zero_phase_velocity
+from wrenchd.models.physics.model import PhysicsModel
 
 #: A named effect "acts on" a joint when its fitted torque there reaches this many floors.
 JOINT_SHARE = 0.25

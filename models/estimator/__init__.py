@@ -12,11 +12,11 @@ Pure core: arrays in, arrays out; the only file I/O is :mod:`.checkpoint`.
 * :mod:`.checkpoint` self-describing checkpoints, loaded with ``weights_only=True``
 """
 
-from models.estimator.correction import Corr, CorrConfig, Xfer, XferConfig
-from models.estimator.estimator import (EstimatorBatch, EstimatorConfig, EstimatorOutput,
+from wrenchd.models.estimator.correction import Corr, CorrConfig, Xfer, XferConfig
+from wrenchd.models.estimator.estimator import (EstimatorBatch, EstimatorConfig, EstimatorOutput,
                                         TwoStepEstimator)
-from models.estimator.free_space import FreeSpaceConfig, FreeSpaceModel
-from models.estimator.wrench import WrenchMap, WrenchMapConfig
+from wrenchd.models.estimator.free_space import FreeSpaceConfig, FreeSpaceModel
+from wrenchd.models.estimator.wrench import WrenchMap, WrenchMapConfig
 
 __all__ = [
     "Corr", "CorrConfig", "EstimatorBatch", "EstimatorConfig", "EstimatorOutput",

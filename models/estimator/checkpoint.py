@@ -23,10 +23,10 @@ from typing import Any
 import torch
 from pydantic import BaseModel, ValidationError
 
-from models.errors import ConfigError
-from models.estimator.correction import Corr, CorrConfig, Xfer, XferConfig
-from models.estimator.free_space import FreeSpaceConfig, FreeSpaceModel
-from models.estimator.training import TrainConfig, TrainResult
+from wrenchd.models.errors import ConfigError
+from wrenchd.models.estimator.correction import Corr, CorrConfig, Xfer, XferConfig
+from wrenchd.models.estimator.free_space import FreeSpaceConfig, FreeSpaceModel
+from wrenchd.models.estimator.training import TrainConfig, TrainResult
 
 FORMAT = "wrenchd.estimator"
 VERSION = 1

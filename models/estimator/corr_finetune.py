@@ -22,7 +22,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from models.errors import ConfigError
+from wrenchd.models.errors import ConfigError
 
 
 class CorrFineTuner:

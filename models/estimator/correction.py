@@ -7,14 +7,14 @@ of intra-operative motion without contact:
 * ``Corr``: a feed-forward network reads a window of the last 10 samples of the positions and
   velocities of all joints plus the step-1 predicted torques, has one hidden layer of 256
   units with ReLU, and outputs a torque correction added to the step-1 prediction (trained
-  with L2 weight decay 0.01, see :mod:`models.estimator.training`).
+  with L2 weight decay 0.01, see :mod:`wrenchd.models.estimator.training`).
 * ``Xfer`` (transfer learning): each step-1 network truncated after its LSTM and frozen, with a
   new LSTM and fully connected layers appended and trained, per joint group. Its output
   replaces the step-1 prediction (it contains the step-1 LSTMs).
 
 Streaming: :class:`HistoryWindow` keeps the last ``window`` feature rows. After a reset (start,
 gap) and until it is full, the window is padded at the old end by repeating the first sample
-of the segment; :func:`models.estimator.features.history_windows` pads the batch path alike.
+of the segment; :func:`wrenchd.models.estimator.features.history_windows` pads the batch path alike.
 """
 
 from __future__ import annotations
@@ -24,11 +24,11 @@ import torch
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 from torch import nn
 
-from models.errors import ConfigError, DataError
-from models.estimator.features import N_FEATURES, history_windows
-from models.estimator.free_space import MIN_STD, FreeSpaceModel, GroupedTorqueModel, check_groups
-from models.estimator.kernels import GroupedRecurrentKernel, LSTMLayerKernel, MLPKernel
-from models.series import N_JOINTS
+from wrenchd.models.errors import ConfigError, DataError
+from wrenchd.models.estimator.features import N_FEATURES, history_windows
+from wrenchd.models.estimator.free_space import MIN_STD, FreeSpaceModel, GroupedTorqueModel, check_groups
+from wrenchd.models.estimator.kernels import GroupedRecurrentKernel, LSTMLayerKernel, MLPKernel
+from wrenchd.models.series import N_JOINTS
 
 
 class CorrConfig(BaseModel):
@@ -152,7 +152,7 @@ class HistoryWindow:
     """The last ``window`` feature rows of a stream, oldest first.
 
     After :meth:`reset` the first pushed row fills the whole window (padding by repetition),
-    matching :func:`models.estimator.features.history_windows`.
+    matching :func:`wrenchd.models.estimator.features.history_windows`.
     """
 
     def __init__(self, window: int, n_features: int = N_FEATURES, dtype=np.float64) -> None:

@@ -2,8 +2,8 @@
 
 ``predicted = step 2(step 1(q, dq))``, ``external = measured - predicted``,
 ``wrench = damped (J^T)^-1 external`` (Wu, Yilmaz, Kazanzides, Tumerdem, arXiv 2012.01479).
-Step 2 is optional: a :class:`~models.estimator.correction.Corr` adds a correction to the
-step-1 prediction; an :class:`~models.estimator.correction.Xfer` replaces it (it contains the
+Step 2 is optional: a :class:`~wrenchd.models.estimator.correction.Corr` adds a correction to the
+step-1 prediction; an :class:`~wrenchd.models.estimator.correction.Xfer` replaces it (it contains the
 step-1 LSTMs, frozen).
 
 One object serves two drivers with the same numbers: :meth:`TwoStepEstimator.step_one` for the
@@ -23,12 +23,12 @@ from dataclasses import dataclass
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from models.errors import ConfigError, DataError
-from models.estimator.correction import Corr, CorrKernel, HistoryWindow, Xfer
-from models.estimator.features import segments
-from models.estimator.free_space import FreeSpaceModel
-from models.estimator.wrench import WrenchMap, WrenchMapConfig
-from models.series import N_JOINTS, JointStates
+from wrenchd.models.errors import ConfigError, DataError
+from wrenchd.models.estimator.correction import Corr, CorrKernel, HistoryWindow, Xfer
+from wrenchd.models.estimator.features import segments
+from wrenchd.models.estimator.free_space import FreeSpaceModel
+from wrenchd.models.estimator.wrench import WrenchMap, WrenchMapConfig
+from wrenchd.models.series import N_JOINTS, JointStates
 
 
 class EstimatorConfig(BaseModel):

@@ -14,8 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from models.errors import DataError
-from models.series import N_JOINTS
+from wrenchd.models.errors import DataError
+from wrenchd.models.series import N_JOINTS
 
 N_FEATURES = 2 * N_JOINTS
 
@@ -61,7 +61,7 @@ def history_windows(x: np.ndarray, window: int) -> np.ndarray:
     Returns:
         (T, window, F). Before ``window`` rows exist, the window is padded at the old end by
         repeating the segment's first row; this is exactly what the streaming
-        :class:`models.estimator.correction.HistoryWindow` does.
+        :class:`wrenchd.models.estimator.correction.HistoryWindow` does.
     """
     x = np.asarray(x)
     if x.ndim != 2:

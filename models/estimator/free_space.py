@@ -8,9 +8,9 @@ units and a fully connected output; the network of the insertion joint 3 has an 
 128-node hidden layer with ReLU and dropout, for the hysteresis of the cannula seal.
 
 The same structure trained directly on trocar data is the paper's ``Troc`` baseline
-(training recipe ``"troc"`` in :mod:`models.estimator.training`).
+(training recipe ``"troc"`` in :mod:`wrenchd.models.estimator.training`).
 
-Shapes: features (B, T, 12) ``[q, dq]`` raw (see :mod:`models.estimator.features`); torques
+Shapes: features (B, T, 12) ``[q, dq]`` raw (see :mod:`wrenchd.models.estimator.features`); torques
 (B, T, 6) [N m, N m, N, N m, N m, N m]. Normalisation is stored in buffers, so a checkpoint
 carries it.
 """
@@ -22,11 +22,11 @@ import torch
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 from torch import nn
 
-from models.errors import ConfigError, DataError
-from models.estimator.features import N_FEATURES
-from models.estimator.kernels import (GroupedRecurrentKernel, LSTMLayerKernel, MLPKernel,
+from wrenchd.models.errors import ConfigError, DataError
+from wrenchd.models.estimator.features import N_FEATURES
+from wrenchd.models.estimator.kernels import (GroupedRecurrentKernel, LSTMLayerKernel, MLPKernel,
                                       RecurrentState)
-from models.series import N_JOINTS
+from wrenchd.models.series import N_JOINTS
 
 #: Joint groups of the paper, zero-based: joints (1, 2), (3), (4), (5, 6).
 JOINT_GROUPS: tuple[tuple[int, ...], ...] = ((0, 1), (2,), (3,), (4, 5))
@@ -153,7 +153,7 @@ class GroupedTorqueModel(nn.Module):
 
     # -- streaming path ------------------------------------------------------------------
     def kernel(self, dtype=None) -> GroupedRecurrentKernel:
-        """A NumPy eval-mode snapshot for streaming (see :mod:`models.estimator.kernels`).
+        """A NumPy eval-mode snapshot for streaming (see :mod:`wrenchd.models.estimator.kernels`).
 
         ``dtype`` defaults to the parameters' dtype (float32 or float64).
         """

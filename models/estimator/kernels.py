@@ -23,7 +23,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from models.errors import ConfigError
+from wrenchd.models.errors import ConfigError
 
 #: Recurrent state of a kernel: ``(h_1, c_1, h_2, c_2, ...)``, one pair per LSTM layer, each
 #: (G, B, H) for G joint groups, batch B and hidden size H.

@@ -20,9 +20,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from models.errors import ConfigError
-from models.estimator.checkpoint import load_checkpoint
-from models.estimator.free_space import FreeSpaceModel
+from wrenchd.models.errors import ConfigError
+from wrenchd.models.estimator.checkpoint import load_checkpoint
+from wrenchd.models.estimator.free_space import FreeSpaceModel
 
 #: Names of the shipped step-1 models.
 PRETRAINED: tuple[str, ...] = ("base", "seal")

@@ -36,11 +36,11 @@ import numpy as np
 import torch
 from pydantic import BaseModel, ConfigDict, Field
 
-from models.errors import ConfigError, DataError
-from models.estimator.correction import Corr, CorrConfig, Xfer, XferConfig
-from models.estimator.features import history_windows, segments
-from models.estimator.free_space import FreeSpaceConfig, FreeSpaceModel, GroupedTorqueModel
-from models.series import JointStates
+from wrenchd.models.errors import ConfigError, DataError
+from wrenchd.models.estimator.correction import Corr, CorrConfig, Xfer, XferConfig
+from wrenchd.models.estimator.features import history_windows, segments
+from wrenchd.models.estimator.free_space import FreeSpaceConfig, FreeSpaceModel, GroupedTorqueModel
+from wrenchd.models.series import JointStates
 
 Segment = tuple[np.ndarray, np.ndarray]          # (T, 12) features, (T, 6) measured torques
 

@@ -3,7 +3,7 @@
 The external joint torque is what the measurement holds beyond the predicted torque of the
 robot's own motion: ``tau_ext = tau_measured - tau_predicted``. A tip wrench ``w`` acts on the
 joints as ``tau_ext = J^T w`` with ``J`` the hybrid Jacobian of the tip
-(:mod:`models.physics.kinematics`): ``w = [Fx, Fy, Fz, Tx, Ty, Tz]``, force [N] in base-frame
+(:mod:`wrenchd.models.physics.kinematics`): ``w = [Fx, Fy, Fz, Tx, Ty, Tz]``, force [N] in base-frame
 axes, torque [N m] about the tip point in base-frame axes. The base frame has its origin at
 the remote centre of motion.
 
@@ -34,9 +34,9 @@ from pydantic import BaseModel, ConfigDict, Field
 from scipy.linalg.lapack import dgesv as _gesv
 from scipy.linalg.lapack import dgesvd as _gesvd
 
-from models.errors import DataError
-from models.physics.kinematics import PSMKinematics
-from models.series import N_JOINTS
+from wrenchd.models.errors import DataError
+from wrenchd.models.physics.kinematics import PSMKinematics
+from wrenchd.models.series import N_JOINTS
 
 
 _EYE = np.eye(N_JOINTS)

@@ -14,8 +14,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.linalg import qr
 
-from models.physics.effects.base import Motion
-from models.physics.effects.inertial import inertial_columns
+from wrenchd.models.physics.effects.base import Motion
+from wrenchd.models.physics.effects.inertial import inertial_columns
 
 #: |R_kk| / |R_00| below this counts as dependent (columns are scaled to unit norm first).
 STRUCTURAL_TOL = 1e-8
@@ -45,7 +45,7 @@ def structural_base(robot, n_states: int = 400, seed: int = 0) -> np.ndarray:
     """Base columns of ``[Y | armature | offset]`` (72 columns) for the chain ``robot``.
 
     Args:
-        robot: a :class:`~models.physics.dynamics.RigidBodyModel`.
+        robot: a :class:`~wrenchd.models.physics.dynamics.RigidBodyModel`.
 
     Returns:
         Sorted column indices (0..71); 66..71 are the offsets.

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.signal import savgol_filter
 
-from models.errors import DataError
+from wrenchd.models.errors import DataError
 
 #: Default window [s]; 0.105 s is 21 samples at 200 Hz.
 DEFAULT_WINDOW_S = 0.105

@@ -5,8 +5,8 @@ Model (linear in its parameters), per joint ``j``::
     tau_j = tau_nominal_j + sum_b Y_b,j delta_b + fc_j tanh(dq_j / eps) + fv_j dq_j + offset_j
 
 ``tau_nominal`` is the nominal rigid body (the model file's ``rigid_body`` section, default
-:mod:`models.physics.dynamics`), ``Y_b`` the identifiable base columns of the inertial
-regressor (:mod:`~models.identification.base_parameters`), so ``delta`` is the change of the
+:mod:`wrenchd.models.physics.dynamics`), ``Y_b`` the identifiable base columns of the inertial
+regressor (:mod:`~wrenchd.models.identification.base_parameters`), so ``delta`` is the change of the
 base parameters from nominal, which keeps the file's ``rigid_body`` physically consistent and
 puts the identified correction in an ``inertial_delta`` effect. Friction and offsets are the
 existing ``coulomb_friction``, ``viscous_friction`` and ``joint_offset`` effects.
@@ -27,13 +27,13 @@ from typing import Any
 import numpy as np
 import statsmodels.api as sm
 
-from models.errors import DataError
-from models.identification.base_parameters import independent_columns, offset_columns, structural_base
-from models.identification.differentiation import smoothed_acceleration, zero_phase_velocity
-from models.physics.effects.base import Motion
-from models.physics.effects.friction import SIGN_SMOOTHING, smooth_sign
-from models.physics.effects.inertial import column_name, inertial_columns
-from models.physics.model import PhysicsModel
+from wrenchd.models.errors import DataError
+from wrenchd.models.identification.base_parameters import independent_columns, offset_columns, structural_base
+from wrenchd.models.identification.differentiation import smoothed_acceleration, zero_phase_velocity
+from wrenchd.models.physics.effects.base import Motion
+from wrenchd.models.physics.effects.friction import SIGN_SMOOTHING, smooth_sign
+from wrenchd.models.physics.effects.inertial import column_name, inertial_columns
+from wrenchd.models.physics.model import PhysicsModel
 
 #: Relative pivot below which a base column counts as not excited by the recording.
 EXCITATION_TOL = 1e-3

@@ -1,7 +1,7 @@
 """Rigid-body dynamics of the PSM's serial-chain approximation, on pinocchio.
 
 The real PSM's pitch axis is driven through a parallelogram with a counterweight; wrenchd
-models it as the serial chain of :mod:`models.physics.kinematics` with lumped inertias. The
+models it as the serial chain of :mod:`wrenchd.models.physics.kinematics` with lumped inertias. The
 default inertias below are **assumptions**, chosen so that simulated torques on the WPI
 excitation trajectories have the magnitudes measured on a real PSM
 (``../shared/data/wpi-psm/one_no_weight.csv``: yaw and pitch about 1 N m RMS, insertion about
@@ -22,9 +22,9 @@ import numpy as np
 import pinocchio as pin
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from models.errors import DataError
-from models.physics.kinematics import PSMKinematics, build_chain, check_positions
-from models.series import N_JOINTS
+from wrenchd.models.errors import DataError
+from wrenchd.models.physics.kinematics import PSMKinematics, build_chain, check_positions
+from wrenchd.models.series import N_JOINTS
 
 
 class LinkInertia(BaseModel):

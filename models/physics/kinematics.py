@@ -29,8 +29,8 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from models.errors import DataError
-from models.series import JOINT_NAMES, N_JOINTS
+from wrenchd.models.errors import DataError
+from wrenchd.models.series import JOINT_NAMES, N_JOINTS
 
 HALF_PI = np.pi / 2
 
@@ -84,7 +84,7 @@ def _dh_placement(row: DHRow) -> pin.SE3:
 def build_chain(dh: tuple[DHRow, ...] = PSM_DH) -> pin.Model:
     """A pinocchio model of the serial chain with massless bodies and a ``tip`` frame.
 
-    Inertias are attached by :mod:`models.physics.dynamics`.
+    Inertias are attached by :mod:`wrenchd.models.physics.dynamics`.
     """
     model = pin.Model()
     model.name = "dvrk_psm"

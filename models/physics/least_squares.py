@@ -6,7 +6,7 @@ its simplest unconstrained form: joint torques are linear in the parameters,
     tau = Y(q, dq, ddq) theta + Ia * ddq + Fc * sign(dq) + Fv * dq + Fo
 
 with ``Y`` pinocchio's joint-torque regressor of the PSM chain (10 inertial parameters per
-link, :meth:`models.physics.dynamics.RigidBodyModel.regressor`), ``Ia`` the armature
+link, :meth:`wrenchd.models.physics.dynamics.RigidBodyModel.regressor`), ``Ia`` the armature
 (reflected motor inertia), ``Fc`` Coulomb, ``Fv`` viscous friction and ``Fo`` a constant
 offset per joint. Many inertial parameters are not identifiable from joint torques alone
 (the regressor is rank deficient), so the minimum-norm least-squares solution is used; the
@@ -23,9 +23,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import savgol_filter
 
-from models.errors import DataError
-from models.physics.dynamics import RigidBodyModel
-from models.series import N_JOINTS
+from wrenchd.models.errors import DataError
+from wrenchd.models.physics.dynamics import RigidBodyModel
+from wrenchd.models.series import N_JOINTS
 
 
 def smoothed_acceleration(velocity: np.ndarray, dt_s: float, window_s: float = 0.105,

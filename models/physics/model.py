@@ -28,10 +28,10 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from models.errors import ConfigError
-from models.physics.dynamics import RigidBodyConfig, RigidBodyModel
-from models.physics.effects import EFFECTS, Effect, Motion
-from models.physics.effects.drift import Drift
+from wrenchd.models.errors import ConfigError
+from wrenchd.models.physics.dynamics import RigidBodyConfig, RigidBodyModel
+from wrenchd.models.physics.effects import EFFECTS, Effect, Motion
+from wrenchd.models.physics.effects.drift import Drift
 
 FORMAT = "wrenchd.physics/1"
 EXTERNAL_EFFECTS = frozenset({"external_contact"})

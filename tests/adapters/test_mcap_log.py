@@ -4,10 +4,10 @@ import shutil
 
 import numpy as np
 
-from adapters.mcap_log import TOPIC_ESTIMATE, LogConfig, McapLog
-from adapters.mcap_session import TOPIC_JOINT_STATES, read_session_report
-from adapters.messages import encode_joint_state
-from models.series import JOINT_NAMES
+from wrenchd.adapters.mcap_log import TOPIC_ESTIMATE, LogConfig, McapLog
+from wrenchd.adapters.mcap_session import TOPIC_JOINT_STATES, read_session_report
+from wrenchd.adapters.messages import encode_joint_state
+from wrenchd.models.series import JOINT_NAMES
 
 
 class Clock:

@@ -13,7 +13,7 @@ from mcap.records import Chunk, Message
 from mcap.stream_reader import breakup_chunk
 from mcap.writer import Writer
 
-from adapters.mcap_session import (
+from wrenchd.adapters.mcap_session import (
     SESSION_FORMAT,
     TOPIC_JOINT_STATES,
     TOPIC_SENSOR_WRENCH,
@@ -24,8 +24,8 @@ from adapters.mcap_session import (
     read_session_report,
     write_session,
 )
-from models.errors import AdapterError, DataError
-from models.series import GroundTruth, JointStates, Session
+from wrenchd.models.errors import AdapterError, DataError
+from wrenchd.models.series import GroundTruth, JointStates, Session
 
 # The writer keeps 10 significant digits ("%.10g"): relative error <= 5e-10.
 RTOL = 5.0001e-10

@@ -5,9 +5,9 @@ import json
 import numpy as np
 import pytest
 
-from adapters.messages import (decode_joint_state, decode_wrench, encode_joint_state,
+from wrenchd.adapters.messages import (decode_joint_state, decode_wrench, encode_joint_state,
                                encode_wrench)
-from models.errors import ConfigError, DataError
+from wrenchd.models.errors import ConfigError, DataError
 
 NAMES = ["outer_yaw", "outer_pitch", "outer_insertion", "outer_roll", "outer_wrist_pitch",
          "outer_wrist_yaw"]
@@ -73,7 +73,7 @@ def test_bad_cdr_and_unknown_encoding_are_refused():
 
 
 def test_setup_change_round_trip_and_refusals():
-    from adapters.messages import decode_setup_change, encode_setup_change
+    from wrenchd.adapters.messages import decode_setup_change, encode_setup_change
 
     assert decode_setup_change(encode_setup_change()) == (None, {})
     stamp, detail = decode_setup_change(encode_setup_change(88_500_000_000, 20, "insufflation"))

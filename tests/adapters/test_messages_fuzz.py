@@ -1,4 +1,4 @@
-"""Bad input, fuzzed: every decoder of ``adapters.messages`` refuses garbage with DataError.
+"""Bad input, fuzzed: every decoder of ``wrenchd.adapters.messages`` refuses garbage with DataError.
 
 Property for ``decode_joint_state`` (JSON and CDR) and ``decode_wrench`` (JSON and CDR): on any
 payload the decoder either raises :class:`DataError` or returns a message that holds exactly
@@ -23,9 +23,9 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-from adapters.messages import JointStateMsg, decode_joint_state, decode_wrench, encode_joint_state, \
+from wrenchd.adapters.messages import JointStateMsg, decode_joint_state, decode_wrench, encode_joint_state, \
     encode_wrench
-from models.errors import DataError
+from wrenchd.models.errors import DataError
 
 FUZZ = settings(max_examples=150, deadline=None, database=None,
                 suppress_health_check=[HealthCheck.too_slow])

@@ -12,8 +12,8 @@ import time
 import pytest
 from pydantic import ValidationError
 
-from adapters.zenoh_io import ZenohConfig, open_session
-from models.errors import AdapterError
+from wrenchd.adapters.zenoh_io import ZenohConfig, open_session
+from wrenchd.models.errors import AdapterError
 from tests.service.test_daemon import free_port
 from tests.service.test_zenoh_restart import ROUTER, readline_within
 

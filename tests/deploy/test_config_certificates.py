@@ -15,8 +15,8 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from adapters.zenoh_io import ZenohConfig, open_session
-from service.config import load_settings
+from wrenchd.adapters.zenoh_io import ZenohConfig, open_session
+from wrenchd.service.config import load_settings
 from tests.deploy.test_router_acl import EC_KEY, free_port, open_router, openssl
 
 DEPLOY = Path(__file__).resolve().parents[2] / "deploy"

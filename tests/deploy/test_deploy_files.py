@@ -19,7 +19,7 @@ UNIT = DEPLOY / "systemd" / "wrenchd@.service"
 
 
 def start_config(path: Path) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "service.cli", "config", "--config",
+    return subprocess.Popen([sys.executable, "-m", "wrenchd", "config", "--config",
                              str(path)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True, cwd=ROOT)
 

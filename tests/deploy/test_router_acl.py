@@ -10,8 +10,8 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from adapters.zenoh_io import ZenohConfig, open_session
-from service.config import load_settings
+from wrenchd.adapters.zenoh_io import ZenohConfig, open_session
+from wrenchd.service.config import load_settings
 
 DEPLOY = Path(__file__).resolve().parents[2] / "deploy"
 ROUTER = DEPLOY / "zenoh" / "router.json5"

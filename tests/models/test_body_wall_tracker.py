@@ -4,10 +4,10 @@ announced set-up changes."""
 import numpy as np
 import pytest
 
-from models.body_wall_tracker import BodyWallTracker, BodyWallTrackerConfig, wall_regressors
-from models.errors import DataError
-from models.physics.effects.base import Motion
-from models.physics.effects.body_wall import BodyWall
+from wrenchd.models.body_wall_tracker import BodyWallTracker, BodyWallTrackerConfig, wall_regressors
+from wrenchd.models.errors import DataError
+from wrenchd.models.physics.effects.base import Motion
+from wrenchd.models.physics.effects.body_wall import BodyWall
 
 
 def motion(n, seed=0, rate_hz=200.0):

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from models.drift_detector import DriftConfig, ResidualDriftDetector
+from wrenchd.models.drift_detector import DriftConfig, ResidualDriftDetector
 
 RATE = 200.0
 FLOOR = np.array([0.02, 0.02, 0.1, 0.002, 0.002, 0.002])

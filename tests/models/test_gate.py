@@ -4,8 +4,8 @@ score, recalibration, the block-fed scale."""
 import numpy as np
 import pytest
 
-from models.errors import DataError
-from models.gate import FreeMotionGate, GateConfig
+from wrenchd.models.errors import DataError
+from wrenchd.models.gate import FreeMotionGate, GateConfig
 
 RATE = 200.0
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from models.errors import DataError
-from models.gate import FreeMotionGate, GateConfig
+from wrenchd.models.errors import DataError
+from wrenchd.models.gate import FreeMotionGate, GateConfig
 
 SCALE = np.array([0.14, 0.09, 0.09, 0.001, 0.0024, 0.0023])   # seal's validation RMSE [N m; N]
 

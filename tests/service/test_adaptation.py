@@ -5,8 +5,8 @@ import copy
 import numpy as np
 import torch
 
-from models.estimator.corr_finetune import CorrFineTuner
-from service.adaptation import AdaptationConfig, Adapter, _lemire_draws
+from wrenchd.models.estimator.corr_finetune import CorrFineTuner
+from wrenchd.service.adaptation import AdaptationConfig, Adapter, _lemire_draws
 
 
 def samples(n: int, seed: int = 0, gain: float = 0.3):
@@ -178,8 +178,8 @@ def test_refit_off_is_adam_alone_to_the_bit():
 def wall_samples(t: np.ndarray, pressure: np.ndarray, seed: int = 0):
     """Samples whose measured yaw and pitch torques hold the body wall at ``pressure`` (the
     simulator's effect): windows whose newest row is (q, dq) of a yaw/pitch sweep."""
-    from models.physics.effects.base import Motion
-    from models.physics.effects.body_wall import BodyWall
+    from wrenchd.models.physics.effects.base import Motion
+    from wrenchd.models.physics.effects.body_wall import BodyWall
 
     rng = np.random.default_rng(seed)
     n = len(t)
@@ -203,7 +203,7 @@ def test_announced_change_carries_the_buffer_over():
     bin, every buffered sample from before the change has its yaw and pitch targets moved by
     (k_after - k_before) g(q) (within the tracker's estimate), later ones are untouched, and
     the other joints never change."""
-    from models.body_wall_tracker import wall_regressors
+    from wrenchd.models.body_wall_tracker import wall_regressors
 
     rate = 100.0
     t = np.arange(0, 90.0, 1 / rate)

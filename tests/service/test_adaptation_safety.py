@@ -1,7 +1,7 @@
 """Adaptation safety: long contacts and an adversarial publisher must not spoil the model.
 
 Each session is simulated ``trocar`` motion (seal and body wall at 12 mmHg) replayed through
-the daemon's own pipeline (``service.replay.replay``, gated policy, adaptation rounds in
+the daemon's own pipeline (``wrenchd.service.replay.replay``, gated policy, adaptation rounds in
 replay's worker with their nets serving 1 s of sample time later, as in the daemon;
 deterministic): a contact-free calibration of ``CAL_S``, then from ``ATTACK_S``
 on something the adaptation must not learn from:
@@ -54,14 +54,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from adapters.sim.scenarios import SCENARIOS, run_scenario
-from models.estimator.correction import Corr
-from models.estimator.estimator import TwoStepEstimator
-from models.estimator.pretrained import load_pretrained
-from models.physics.model import PhysicsModel
-from models.series import JointStates, Session
-from service.pipeline import PipelineConfig, initial_corr
-from service.replay import ReplayResult, replay
+from wrenchd.adapters.sim.scenarios import SCENARIOS, run_scenario
+from wrenchd.models.estimator.correction import Corr
+from wrenchd.models.estimator.estimator import TwoStepEstimator
+from wrenchd.models.estimator.pretrained import load_pretrained
+from wrenchd.models.physics.model import PhysicsModel
+from wrenchd.models.series import JointStates, Session
+from wrenchd.service.pipeline import PipelineConfig, initial_corr
+from wrenchd.service.replay import ReplayResult, replay
 
 CAL_S, ATTACK_S, DURATION_S, SEED = 20.0, 25.0, 50.0, 7
 BOUND = 1.2                            # post-attack held-out error / pre-attack, at most

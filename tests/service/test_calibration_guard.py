@@ -14,11 +14,11 @@ from functools import lru_cache
 import numpy as np
 import pytest
 
-from adapters.sim.scenarios import run_scenario
-from models.estimator.pretrained import load_pretrained
-from models.errors import ConfigError
-from service.pipeline import ArmPipeline, CalibrationGuardConfig, PipelineConfig
-from service.replay import replay
+from wrenchd.adapters.sim.scenarios import run_scenario
+from wrenchd.models.estimator.pretrained import load_pretrained
+from wrenchd.models.errors import ConfigError
+from wrenchd.service.pipeline import ArmPipeline, CalibrationGuardConfig, PipelineConfig
+from wrenchd.service.replay import replay
 
 DURATION_S, CALIBRATION_S = 24.0, 20.0
 

@@ -12,7 +12,7 @@ SCENARIOS = ["free-space", "free-space-seal", "trocar", "trocar-contact",
 
 
 def wrenchd(*args, check=True):
-    return subprocess.run([sys.executable, "-m", "service.cli", *args], capture_output=True,
+    return subprocess.run([sys.executable, "-m", "wrenchd", *args], capture_output=True,
                           text=True, check=check, timeout=300)
 
 
@@ -25,7 +25,7 @@ def test_light_commands_start_without_the_heavy_imports():
     seconds of start-up would misplace it. Names of scenarios and policies load on use."""
     probe = f"""
 import sys
-from service.cli import main
+from wrenchd.service.cli import main
 for argv in (["announce", "--connect", "tcp/127.0.0.1:9", "--timeout", "0.1"],
              ["echo", "--connect", "tcp/127.0.0.1:9", "--status", "--timeout", "0.1"]):
     assert main(argv) == 1, argv

@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from models.errors import ConfigError
-from service.config import load_settings
+from wrenchd.models.errors import ConfigError
+from wrenchd.service.config import load_settings
 from tests.service.test_daemon import children_of, free_port, wait_for
 
 
@@ -44,7 +44,7 @@ listen = ["tcp/127.0.0.1:{free_port()}"]
 [log]
 directory = "{tmp_path / 'logs'}"
 """)
-    daemon = subprocess.Popen([sys.executable, "-m", "service.cli", "serve", "--config",
+    daemon = subprocess.Popen([sys.executable, "-m", "wrenchd", "serve", "--config",
                                str(config)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                               text=True)
     try:

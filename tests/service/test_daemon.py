@@ -18,10 +18,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from adapters.mcap_log import TOPIC_ESTIMATE, TOPIC_EVENTS
-from adapters.mcap_session import TOPIC_JOINT_STATES, read_session_report
-from adapters.messages import decode_wrench, encode_joint_state, encode_setup_change
-from adapters.zenoh_io import ZenohConfig, open_session
+from wrenchd.adapters.mcap_log import TOPIC_ESTIMATE, TOPIC_EVENTS
+from wrenchd.adapters.mcap_session import TOPIC_JOINT_STATES, read_session_report
+from wrenchd.adapters.messages import decode_wrench, encode_joint_state, encode_setup_change
+from wrenchd.adapters.zenoh_io import ZenohConfig, open_session
 
 
 def free_port() -> int:
@@ -79,7 +79,7 @@ def read_mcap(path: Path) -> dict[str, list[bytes]]:
 def test_daemon_end_to_end(tmp_path, encoding):
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     config = write_config(tmp_path / "wrenchd.toml", endpoint, encoding, tmp_path / "logs")
-    daemon = subprocess.Popen([sys.executable, "-m", "service.cli", "serve", "--config",
+    daemon = subprocess.Popen([sys.executable, "-m", "wrenchd", "serve", "--config",
                                str(config)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                               text=True)
     robot = None
@@ -100,7 +100,7 @@ def test_daemon_end_to_end(tmp_path, encoding):
         alive = list(session.liveliness().get("dvrk/PSM2/wrenchd/alive", timeout=5.0))
         assert any(r.ok is not None for r in alive)
         robot = subprocess.Popen(
-            [sys.executable, "-m", "service.cli", "robot", "--scenario", "trocar", "--seed", "2",
+            [sys.executable, "-m", "wrenchd", "robot", "--scenario", "trocar", "--seed", "2",
              "--arm", "PSM2", "--duration", "4", "--encoding", encoding, "--connect", endpoint,
              "--out-dir", str(tmp_path / "robot"), "--quiet"],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -178,7 +178,7 @@ def test_daemon_end_to_end(tmp_path, encoding):
     assert sorted(e["error"] for e in logged_events if e["kind"] == "error") == [
         "decode", "invalid", "setup"]
     # a replay of the log can announce what the daemon was told
-    from service.replay_source import announced_changes, load_session, logged_setup_changes
+    from wrenchd.service.replay_source import announced_changes, load_session, logged_setup_changes
 
     told = [(change["t"], {"arm": "PSM2", "pressure_mmhg": 20.0, "note": "pressure up",
                            "carry_over": True})]

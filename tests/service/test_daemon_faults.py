@@ -12,10 +12,10 @@ from contextlib import contextmanager
 import numpy as np
 import zenoh
 
-from adapters.mcap_session import read_session_report
-from adapters.messages import encode_joint_state
-from adapters.sim.scenarios import run_scenario
-from adapters.zenoh_io import ZenohConfig, open_session
+from wrenchd.adapters.mcap_session import read_session_report
+from wrenchd.adapters.messages import encode_joint_state
+from wrenchd.adapters.sim.scenarios import run_scenario
+from wrenchd.adapters.zenoh_io import ZenohConfig, open_session
 from tests.service.test_daemon import free_port, wait_for, write_config
 
 
@@ -24,7 +24,7 @@ def serving(config, endpoint: str, arms: int):
     """``wrenchd serve --config config`` as a subprocess and a zenoh session connected to
     it; on exit the session is closed and the daemon stopped with SIGINT, which it must
     survive cleanly."""
-    daemon = subprocess.Popen([sys.executable, "-m", "service.cli", "serve", "--config",
+    daemon = subprocess.Popen([sys.executable, "-m", "wrenchd", "serve", "--config",
                                str(config)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                               text=True)
     session = None
@@ -47,7 +47,7 @@ def test_kill_9_of_the_daemon_still_finishes_its_log(tmp_path):
     flush interval: tests/adapters/test_mcap_log.py.)"""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     config = write_config(tmp_path / "wrenchd.toml", endpoint, "json", tmp_path / "logs")
-    daemon = subprocess.Popen([sys.executable, "-m", "service.cli", "serve", "--config",
+    daemon = subprocess.Popen([sys.executable, "-m", "wrenchd", "serve", "--config",
                                str(config)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                               text=True)
     js = run_scenario("trocar", 6.0, 5).joint_states
@@ -96,8 +96,8 @@ def test_a_burst_is_worked_off_in_batches_without_loss(tmp_path):
     sample per wake-up, within the ring's 2 000): every one gets its wrench, in stamp order,
     with the estimates of a sample-by-sample pipeline (the daemon works a backlog off with
     process_many)."""
-    from models.estimator.pretrained import load_pretrained
-    from service.pipeline import ArmPipeline, PipelineConfig
+    from wrenchd.models.estimator.pretrained import load_pretrained
+    from wrenchd.service.pipeline import ArmPipeline, PipelineConfig
 
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     config = write_config(tmp_path / "wrenchd.toml", endpoint, "json", tmp_path / "logs")
@@ -123,7 +123,7 @@ def test_a_burst_is_worked_off_in_batches_without_loss(tmp_path):
                 from None
         pub.undeclare()
         sub.undeclare()
-    from adapters.messages import decode_joint_state, decode_wrench
+    from wrenchd.adapters.messages import decode_joint_state, decode_wrench
 
     got = [decode_wrench("json", p) for p in received]
     stamps = [g[0] for g in got]
@@ -142,9 +142,9 @@ def test_two_arms_of_one_model_get_the_numbers_each_would_get_alone(tmp_path):
     """Two arms fed together at 200 Hz (the daemon steps arms of one model as one batch):
     every wrench comes back on each arm, equal to a one-arm pipeline's to float32 rounding
     (the first second, before any adaptation round can change the nets)."""
-    from adapters.messages import decode_joint_state, decode_wrench
-    from models.estimator.pretrained import load_pretrained
-    from service.pipeline import ArmPipeline, PipelineConfig
+    from wrenchd.adapters.messages import decode_joint_state, decode_wrench
+    from wrenchd.models.estimator.pretrained import load_pretrained
+    from wrenchd.service.pipeline import ArmPipeline, PipelineConfig
 
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     config = write_config(tmp_path / "wrenchd.toml", endpoint, "json", tmp_path / "logs",

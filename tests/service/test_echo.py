@@ -10,7 +10,7 @@ import sys
 
 from tests.service.test_daemon import free_port, write_config
 
-CLI = [sys.executable, "-m", "service.cli"]
+CLI = [sys.executable, "-m", "wrenchd"]
 
 
 def test_echo_prints_live_wrenches_events_and_status(tmp_path):

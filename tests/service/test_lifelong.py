@@ -61,11 +61,11 @@ measured 1.16).
 import numpy as np
 import pytest
 
-from adapters.sim.scenarios import run_scenario
-from models.estimator.pretrained import load_pretrained
-from service.pipeline import PipelineConfig, PolicyConfig
-from service.replay import replay
-from service.replay_metrics import recovery_levels
+from wrenchd.adapters.sim.scenarios import run_scenario
+from wrenchd.models.estimator.pretrained import load_pretrained
+from wrenchd.service.pipeline import PipelineConfig, PolicyConfig
+from wrenchd.service.replay import replay
+from wrenchd.service.replay_metrics import recovery_levels
 
 DURATION, SEED = 220.0, 3
 CHANGE_S = 0.4 * DURATION
@@ -105,7 +105,7 @@ def test_an_announced_change_is_recovered_within_ten_percent(session):
     the replay announces the scenario's step at its time): the adapter carries its buffer over
     to the body wall stiffness it measures after the change (models/body_wall_tracker.py).
     Measured on seeds 3-8 (``wrenchd recovery --settled --announce``): README, Figures."""
-    from service.replay_source import announced_changes
+    from wrenchd.service.replay_source import announced_changes
 
     changes = announced_changes(session)
     assert [t for t, _ in changes] == [pytest.approx(CHANGE_S)]

@@ -12,11 +12,11 @@ import time
 import numpy as np
 from mcap.reader import make_reader
 
-from adapters.mcap_log import TOPIC_ESTIMATE, LogConfig, McapLog, estimate_record
-from adapters.mcap_session import TOPIC_JOINT_STATES, read_session_report
-from adapters.messages import encode_joint_state
-from models.series import JOINT_NAMES
-from service.log_process import LogWriterProcess
+from wrenchd.adapters.mcap_log import TOPIC_ESTIMATE, LogConfig, McapLog, estimate_record
+from wrenchd.adapters.mcap_session import TOPIC_JOINT_STATES, read_session_report
+from wrenchd.adapters.messages import encode_joint_state
+from wrenchd.models.series import JOINT_NAMES
+from wrenchd.service.log_process import LogWriterProcess
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
@@ -81,8 +81,8 @@ def test_the_files_are_finished_when_the_daemon_is_killed(tmp_path):
         import os, signal, sys, time
         sys.path.insert(0, {ROOT!r})
         sys.path.insert(0, {os.path.dirname(os.path.abspath(__file__))!r})
-        from adapters.mcap_log import LogConfig, McapLog
-        from service.log_process import LogWriterProcess
+        from wrenchd.adapters.mcap_log import LogConfig, McapLog
+        from wrenchd.service.log_process import LogWriterProcess
         from test_log_process import put_samples
         log = McapLog("PSM1", LogConfig(directory={str(tmp_path)!r}))
         writer = LogWriterProcess([log])

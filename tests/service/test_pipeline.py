@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from adapters.messages import JointStateMsg
-from adapters.sim.scenarios import run_scenario
-from models.estimator.pretrained import load_pretrained
-from service.pipeline import ArmPipeline, PipelineConfig, PolicyConfig
+from wrenchd.adapters.messages import JointStateMsg
+from wrenchd.adapters.sim.scenarios import run_scenario
+from wrenchd.models.estimator.pretrained import load_pretrained
+from wrenchd.service.pipeline import ArmPipeline, PipelineConfig, PolicyConfig
 
 
 @pytest.fixture(scope="module")
@@ -62,7 +62,7 @@ def test_a_gap_restarts_the_recurrent_state(seal, trocar):
 
 
 def test_a_model_swap_keeps_the_recurrent_state(seal, trocar):
-    from service.pipeline import initial_corr
+    from wrenchd.service.pipeline import initial_corr
 
     p = ArmPipeline("PSM1", seal, PipelineConfig(policy=PolicyConfig(name="frozen")))
     ref = ArmPipeline("PSM1", seal, PipelineConfig(policy=PolicyConfig(name="frozen")))

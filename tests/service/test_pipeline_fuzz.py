@@ -1,4 +1,4 @@
-"""Bad input, fuzzed, through one arm's pipeline (``service.pipeline.ArmPipeline``).
+"""Bad input, fuzzed, through one arm's pipeline (``wrenchd.service.pipeline.ArmPipeline``).
 
 A plausible 200 Hz PSM stream (shipped ``seal`` step-1 weights) is interleaved, at places and
 in numbers hypothesis chooses, with bad samples: NaN/Inf in one field, absurd magnitudes,
@@ -25,11 +25,11 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from adapters.messages import JointStateMsg, decode_joint_state
-from models.errors import DataError
-from models.estimator.pretrained import load_pretrained
-from models.gate import GateConfig
-from service.pipeline import ArmPipeline, PipelineConfig, PolicyConfig
+from wrenchd.adapters.messages import JointStateMsg, decode_joint_state
+from wrenchd.models.errors import DataError
+from wrenchd.models.estimator.pretrained import load_pretrained
+from wrenchd.models.gate import GateConfig
+from wrenchd.service.pipeline import ArmPipeline, PipelineConfig, PolicyConfig
 
 NS = 1_000_000_000
 STEP_NS = 5_000_000                  # 200 Hz
@@ -205,7 +205,7 @@ def test_long_stream_with_every_defect_gated():
 
 # -- the daemon's path: payload -> decode -> reject or process ----------------------------
 def handle(pipeline: ArmPipeline, payload: bytes, t_arrival: float):
-    """What ``service.daemon`` does with one payload (decode errors are rejected)."""
+    """What ``wrenchd.service.daemon`` does with one payload (decode errors are rejected)."""
     try:
         msg = decode_joint_state("json", payload)
     except DataError as exc:

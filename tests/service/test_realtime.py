@@ -13,8 +13,8 @@ from pathlib import Path
 
 import pytest
 
-from models.errors import ConfigError
-from service.config import AUTO_REALTIME_PRIORITY, load_settings
+from wrenchd.models.errors import ConfigError
+from wrenchd.service.config import AUTO_REALTIME_PRIORITY, load_settings
 from tests.service.test_daemon import children_of, free_port, wait_for
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -68,7 +68,7 @@ def _threads(pid: int) -> dict[int, tuple[str, int, int]]:
 
 @pytest.mark.skipif(not _may_use_realtime(), reason="this machine gives no real-time class")
 def test_by_default_the_sample_path_is_real_time_where_permitted(tmp_path):
-    daemon = subprocess.Popen([sys.executable, "-m", "service.cli", "serve", "--config",
+    daemon = subprocess.Popen([sys.executable, "-m", "wrenchd", "serve", "--config",
                                str(_config(tmp_path, None))], stdout=subprocess.PIPE,
                               stderr=subprocess.PIPE, text=True, cwd=ROOT)
     try:
@@ -83,7 +83,7 @@ def test_by_default_the_sample_path_is_real_time_where_permitted(tmp_path):
 
 @pytest.mark.skipif(not _may_use_realtime(), reason="this machine gives no real-time class")
 def test_a_samples_threads_are_real_time_and_the_rest_is_not(tmp_path):
-    daemon = subprocess.Popen([sys.executable, "-m", "service.cli", "serve", "--config",
+    daemon = subprocess.Popen([sys.executable, "-m", "wrenchd", "serve", "--config",
                                str(_config(tmp_path))], stdout=subprocess.PIPE,
                               stderr=subprocess.PIPE, text=True, cwd=ROOT)
     try:
@@ -117,7 +117,7 @@ def test_a_samples_threads_are_real_time_and_the_rest_is_not(tmp_path):
                     reason="needs root and setpriv to run the daemon without privileges")
 def test_a_daemon_that_may_not_is_refused_with_what_to_do_or_by_default_runs_normally():
     unprivileged = ["setpriv", "--reuid=65534", "--regid=65534", "--clear-groups",
-                    "--inh-caps=-all", sys.executable, "-m", "service.cli", "serve", "--config"]
+                    "--inh-caps=-all", sys.executable, "-m", "wrenchd", "serve", "--config"]
     # pytest's own temporary directories are root's alone
     with tempfile.TemporaryDirectory() as tmp:
         Path(tmp).chmod(0o777)

@@ -12,18 +12,18 @@ import numpy as np
 import pytest
 import torch
 
-from adapters.mcap_log import TOPIC_ESTIMATE, LogConfig, McapLog
-from adapters.mcap_session import TOPIC_JOINT_STATES, read_session
-from adapters.messages import encode_joint_state
-from models.errors import ConfigError
-from models.estimator.pretrained import load_pretrained
-from service.adaptation import AdaptationConfig
-from service.pipeline import ArmPipeline, PipelineConfig
-from service.policies import Policy, get_policy, policy_names, register_policy
-from service.replay import STEP1_CHUNKS, BatchedEstimator, replay
-from service.replay_metrics import free_error_series, replay_metrics
-from service.replay_output import write_replay_mcap
-from service.replay_source import joint_state_messages, load_session
+from wrenchd.adapters.mcap_log import TOPIC_ESTIMATE, LogConfig, McapLog
+from wrenchd.adapters.mcap_session import TOPIC_JOINT_STATES, read_session
+from wrenchd.adapters.messages import encode_joint_state
+from wrenchd.models.errors import ConfigError
+from wrenchd.models.estimator.pretrained import load_pretrained
+from wrenchd.service.adaptation import AdaptationConfig
+from wrenchd.service.pipeline import ArmPipeline, PipelineConfig
+from wrenchd.service.policies import Policy, get_policy, policy_names, register_policy
+from wrenchd.service.replay import STEP1_CHUNKS, BatchedEstimator, replay
+from wrenchd.service.replay_metrics import free_error_series, replay_metrics
+from wrenchd.service.replay_output import write_replay_mcap
+from wrenchd.service.replay_source import joint_state_messages, load_session
 
 ROOT = Path(__file__).resolve().parents[2]
 # short sessions: calibration 3 s so the gate, the delay line and rounds all act
@@ -201,7 +201,7 @@ def test_cli_replay_subprocess(tmp_path):
     out, rep = tmp_path / "out.mcap", tmp_path / "rep"
     cfg = tmp_path / "p.toml"
     cfg.write_text("calibration_s = 3.0\n[gate]\nenter_sigma = 5.0\n")
-    cmd = [sys.executable, "-m", "service.cli", "replay", "sim:trocar-contact:8:1",
+    cmd = [sys.executable, "-m", "wrenchd", "replay", "sim:trocar-contact:8:1",
            "--policy", "ungated", "--config", str(cfg), "--seed", "1", "-o", str(out),
            "--report", str(rep)]
     res = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=240,

@@ -5,12 +5,12 @@ import os
 import subprocess
 import sys
 
-from service.reproduction import AXES, CONFIGS
+from wrenchd.service.reproduction import AXES, CONFIGS
 
 
 def test_quick_reproduction_writes_the_report(tmp_path):
     out = tmp_path / "repro"
-    done = subprocess.run([sys.executable, "-m", "service.cli", "reproduce", "--quick",
+    done = subprocess.run([sys.executable, "-m", "wrenchd", "reproduce", "--quick",
                            "--out", str(out), "--threads", "1"], capture_output=True, text=True,
                           env={**os.environ, "OMP_NUM_THREADS": "1"}, timeout=300)
     assert done.returncode == 0, done.stderr

@@ -9,8 +9,8 @@ import time
 
 import numpy as np
 
-from adapters.mcap_session import read_session_report
-from adapters.zenoh_io import ZenohConfig, open_session
+from wrenchd.adapters.mcap_session import read_session_report
+from wrenchd.adapters.zenoh_io import ZenohConfig, open_session
 
 
 def free_port() -> int:
@@ -22,7 +22,7 @@ def free_port() -> int:
 def test_robot_streams_joint_states_and_records_them(tmp_path):
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "service.cli", "robot", "--scenario", "trocar", "--arm", "PSM2",
+        [sys.executable, "-m", "wrenchd", "robot", "--scenario", "trocar", "--arm", "PSM2",
          "--listen", endpoint, "--out-dir", str(tmp_path)],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     received = []
@@ -65,7 +65,7 @@ def run_robot_listening(tmp_path, *extra):
     state and set-up keys."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "service.cli", "robot", "--scenario", "insufflation-change",
+        [sys.executable, "-m", "wrenchd", "robot", "--scenario", "insufflation-change",
          "--duration", "4", "--listen", endpoint, "--out-dir", str(tmp_path), "--quiet",
          *extra], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     states, setups = [], []
@@ -89,7 +89,7 @@ def run_robot_listening(tmp_path, *extra):
 
 
 def test_robot_announces_its_scenarios_set_up_changes(tmp_path):
-    from adapters.messages import decode_setup_change
+    from wrenchd.adapters.messages import decode_setup_change
 
     states, setups = run_robot_listening(tmp_path)
     assert len(states) > 500

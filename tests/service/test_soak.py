@@ -3,7 +3,7 @@ zenoh for a few seconds; every joint state gets its wrench and memory is sampled
 
 import math
 
-from service.bench_service import bench_service
+from wrenchd.service.bench_service import bench_service
 
 
 def test_short_soak_drops_nothing_and_reports_memory():

@@ -7,7 +7,7 @@ import sys
 
 def test_one_compute_thread_limits_blas_after_numpy_was_imported():
     code = ("import numpy, threadpoolctl\n"
-            "from service.threads import one_compute_thread\n"
+            "from wrenchd.service.threads import one_compute_thread\n"
             "before = max(i['num_threads'] for i in threadpoolctl.threadpool_info())\n"
             "one_compute_thread()\n"
             "after = {i['num_threads'] for i in threadpoolctl.threadpool_info()}\n"

@@ -8,11 +8,11 @@ import sys
 import numpy as np
 import pytest
 
-from models.errors import ConfigError
-from models.estimator.checkpoint import load_checkpoint
-from service.train_cmd import read_train_config
+from wrenchd.models.errors import ConfigError
+from wrenchd.models.estimator.checkpoint import load_checkpoint
+from wrenchd.service.train_cmd import read_train_config
 
-WRENCHD = [sys.executable, "-m", "service.cli"]
+WRENCHD = [sys.executable, "-m", "wrenchd"]
 ENV = {**os.environ, "OMP_NUM_THREADS": "1"}
 
 

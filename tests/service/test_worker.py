@@ -5,8 +5,8 @@ import time
 
 import numpy as np
 
-from service.adaptation import AdaptationConfig
-from service.worker import ProcessAdaptation, WorkerProcess
+from wrenchd.service.adaptation import AdaptationConfig
+from wrenchd.service.worker import ProcessAdaptation, WorkerProcess
 from tests.service.test_adaptation import samples
 
 

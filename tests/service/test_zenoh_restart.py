@@ -26,9 +26,9 @@ from pathlib import Path
 
 import numpy as np
 
-from adapters.messages import decode_wrench
-from adapters.zenoh_io import ZenohConfig, open_session
-from adapters.mcap_log import TOPIC_EVENTS
+from wrenchd.adapters.messages import decode_wrench
+from wrenchd.adapters.zenoh_io import ZenohConfig, open_session
+from wrenchd.adapters.mcap_log import TOPIC_EVENTS
 from tests.service.test_daemon import free_port, read_mcap, wait_for
 
 KEYS = {k: f"dvrk/PSM2/{v}" for k, v in (("wrench", "wrenchd/measured_cf"),
@@ -75,7 +75,7 @@ def start_router(endpoint: str) -> subprocess.Popen:
 def spawn_robot(tmp_path: Path, name: str, seed: int, *zenoh_args: str) -> subprocess.Popen:
     """``wrenchd robot`` (PSM2, trocar, JSON; at most 15 s, stopped earlier with SIGINT)."""
     return subprocess.Popen(
-        [sys.executable, "-m", "service.cli", "robot", "--scenario", "trocar", "--seed",
+        [sys.executable, "-m", "wrenchd", "robot", "--scenario", "trocar", "--seed",
          str(seed), "--arm", "PSM2", "--duration", "15", *zenoh_args,
          "--out-dir", str(tmp_path / name), "--quiet"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -108,7 +108,7 @@ calibration_s = 2.0
 [arms.pipeline.adaptation]
 min_train_samples = 200                  # rounds (and swaps) within the first seconds
 """)
-    return subprocess.Popen([sys.executable, "-m", "service.cli", "serve", "--config",
+    return subprocess.Popen([sys.executable, "-m", "wrenchd", "serve", "--config",
                              str(config)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True)
 

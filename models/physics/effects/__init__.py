@@ -6,7 +6,7 @@ use: ``coulomb_friction``, ``viscous_friction``, ``stribeck_friction``, ``joint_
 ``external_contact``, ``inertial_delta`` (identified base parameters).
 """
 
-from models.physics.effects import (  # noqa: F401  (imported to register)
+from wrenchd.models.physics.effects import (  # noqa: F401  (imported to register)
     body_wall,
     contact,
     coupling,
@@ -17,6 +17,6 @@ from models.physics.effects import (  # noqa: F401  (imported to register)
     seal,
     static,
 )
-from models.physics.effects.base import EFFECTS, Effect, EffectParams, Motion, register
+from wrenchd.models.physics.effects.base import EFFECTS, Effect, EffectParams, Motion, register
 
 __all__ = ["EFFECTS", "Effect", "EffectParams", "Motion", "register"]

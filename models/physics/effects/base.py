@@ -3,7 +3,7 @@
 An effect maps a motion (arrays) to joint torques (arrays); it never does I/O. Parameters are
 a pydantic model beside the effect, so a model file validates with messages that name the bad
 value. Any numeric parameter can vary in time: :meth:`Effect.torque` takes ``overrides``,
-arrays whose first axis is time (that is how :mod:`~models.physics.effects.drift` works).
+arrays whose first axis is time (that is how :mod:`~wrenchd.models.physics.effects.drift` works).
 """
 
 from __future__ import annotations
@@ -15,8 +15,8 @@ from typing import Any, ClassVar
 import numpy as np
 from pydantic import BaseModel, ConfigDict
 
-from models.errors import ConfigError
-from models.series import N_JOINTS
+from wrenchd.models.errors import ConfigError
+from wrenchd.models.series import N_JOINTS
 
 
 @dataclass(frozen=True)
@@ -26,7 +26,7 @@ class Motion:
     Attributes:
         t: (N,) time [s].
         q, dq, ddq: (N, 6) positions, velocities, accelerations [rad, m; per s; per s^2].
-        robot: the :class:`~models.physics.dynamics.RigidBodyModel` (pinocchio model with
+        robot: the :class:`~wrenchd.models.physics.dynamics.RigidBodyModel` (pinocchio model with
             inertias), for effects that need kinematics or the regressor.
     """
 

@@ -22,8 +22,8 @@ from __future__ import annotations
 import numpy as np
 from pydantic import Field
 
-from models.physics.effects.base import Effect, EffectParams, Motion, register
-from models.physics.kinematics import shaft_axis_and_derivatives
+from wrenchd.models.physics.effects.base import Effect, EffectParams, Motion, register
+from wrenchd.models.physics.kinematics import shaft_axis_and_derivatives
 
 
 class BodyWallParams(EffectParams):

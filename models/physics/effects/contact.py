@@ -15,7 +15,7 @@ import numpy as np
 import pinocchio as pin
 from pydantic import Field, field_validator
 
-from models.physics.effects.base import Effect, EffectParams, Motion, register
+from wrenchd.models.physics.effects.base import Effect, EffectParams, Motion, register
 
 
 class ContactParams(EffectParams):

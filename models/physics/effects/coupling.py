@@ -13,8 +13,8 @@ from __future__ import annotations
 import numpy as np
 from pydantic import Field, field_validator
 
-from models.physics.effects.base import Effect, EffectParams, Motion, register
-from models.physics.effects.friction import smooth_sign
+from wrenchd.models.physics.effects.base import Effect, EffectParams, Motion, register
+from wrenchd.models.physics.effects.friction import smooth_sign
 
 WRIST = slice(4, 6)
 

@@ -18,8 +18,8 @@ from typing import Literal
 import numpy as np
 from pydantic import Field, model_validator
 
-from models.errors import ConfigError
-from models.physics.effects.base import Effect, EffectParams, Motion, register
+from wrenchd.models.errors import ConfigError
+from wrenchd.models.physics.effects.base import Effect, EffectParams, Motion, register
 
 
 class DriftParams(EffectParams):

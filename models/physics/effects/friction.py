@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 from pydantic import Field, field_validator
 
-from models.physics.effects.base import Effect, EffectParams, Motion, per_joint, register
+from wrenchd.models.physics.effects.base import Effect, EffectParams, Motion, per_joint, register
 
 DEFAULT_FC = (0.05, 0.067, 0.45, 0.003, 0.005, 0.005)
 DEFAULT_FV = (0.09, 0.22, 1.2, 0.002, 0.006, 0.006)

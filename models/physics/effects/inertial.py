@@ -26,7 +26,7 @@ import re
 import numpy as np
 from pydantic import Field, field_validator, model_validator
 
-from models.physics.effects.base import Effect, EffectParams, Motion, per_joint, register
+from wrenchd.models.physics.effects.base import Effect, EffectParams, Motion, per_joint, register
 
 #: pinocchio's order of a link's 10 standard inertial parameters.
 STANDARD_NAMES = ("m", "mx", "my", "mz", "ixx", "ixy", "iyy", "ixz", "iyz", "izz")

@@ -12,7 +12,7 @@ import numpy as np
 import pinocchio as pin
 from pydantic import Field
 
-from models.physics.effects.base import Effect, EffectParams, Motion, register
+from wrenchd.models.physics.effects.base import Effect, EffectParams, Motion, register
 
 
 class PayloadParams(EffectParams):

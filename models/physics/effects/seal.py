@@ -58,8 +58,8 @@ import math
 import numpy as np
 from pydantic import Field, field_validator
 
-from models.errors import ConfigError, DataError
-from models.physics.effects.base import Effect, EffectParams, Motion, register, zeros
+from wrenchd.models.errors import ConfigError, DataError
+from wrenchd.models.physics.effects.base import Effect, EffectParams, Motion, register, zeros
 
 #: Columns the seal acts on: insertion [m, N] and tool roll [rad, N m].
 SEALED_JOINTS = (2, 3)

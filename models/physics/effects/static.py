@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 from pydantic import Field, field_validator
 
-from models.physics.effects.base import Effect, EffectParams, Motion, per_joint, register
+from wrenchd.models.physics.effects.base import Effect, EffectParams, Motion, per_joint, register
 
 
 class OffsetParams(EffectParams):

@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from adapters.sim.scenarios import SCENARIOS, run_scenario
-from adapters.sim.simulator import SimulatorConfig
-from models.errors import ConfigError
-from models.physics.model import PhysicsModel
+from wrenchd.adapters.sim.scenarios import SCENARIOS, run_scenario
+from wrenchd.adapters.sim.simulator import SimulatorConfig
+from wrenchd.models.errors import ConfigError
+from wrenchd.models.physics.model import PhysicsModel
 
 REQUIRED = {"free-space", "free-space-seal", "trocar", "trocar-contact",
             "insufflation-change", "instrument-drift"}

@@ -3,12 +3,12 @@
 import numpy as np
 import pytest
 
-from models.discrepancy.candidates import (PAYLOAD_SITES, bristle_state, build_candidates,
+from wrenchd.models.discrepancy.candidates import (PAYLOAD_SITES, bristle_state, build_candidates,
                                            merge_effects)
-from models.discrepancy.residual import noise_floor, white_noise_level
-from models.physics.effects import EFFECTS, Motion
-from models.physics.effects.seal import seal_force
-from models.physics.model import PhysicsModel
+from wrenchd.models.discrepancy.residual import noise_floor, white_noise_level
+from wrenchd.models.physics.effects import EFFECTS, Motion
+from wrenchd.models.physics.effects.seal import seal_force
+from wrenchd.models.physics.model import PhysicsModel
 
 
 @pytest.fixture(scope="module")

@@ -10,8 +10,8 @@ import json
 
 import pytest
 
-from models.discrepancy.workflow import run_discrepancy
-from service.hidden_effects import judge, make_case
+from wrenchd.models.discrepancy.workflow import run_discrepancy
+from wrenchd.service.hidden_effects import judge, make_case
 
 
 def _run(hidden, seed):

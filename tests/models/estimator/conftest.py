@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 import torch
 
-from adapters.sim.scenarios import run_scenario
-from models.estimator.correction import Corr, Xfer
-from models.estimator.free_space import FreeSpaceModel
-from models.estimator.training import fit_corr, fit_free_space, recipe
+from wrenchd.adapters.sim.scenarios import run_scenario
+from wrenchd.models.estimator.correction import Corr, Xfer
+from wrenchd.models.estimator.free_space import FreeSpaceModel
+from wrenchd.models.estimator.training import fit_corr, fit_free_space, recipe
 
 #: Small but real training budgets: the paper's structure (128-unit LSTMs, 256-unit Corr),
 #: a handful of epochs.

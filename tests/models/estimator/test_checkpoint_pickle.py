@@ -10,8 +10,8 @@ import os
 import pytest
 import torch
 
-from models.errors import ConfigError
-from models.estimator.checkpoint import load_checkpoint
+from wrenchd.models.errors import ConfigError
+from wrenchd.models.estimator.checkpoint import load_checkpoint
 
 
 class _RunsOnLoad:

@@ -5,8 +5,8 @@ import pytest
 import torch
 from torch import nn
 
-from models.errors import ConfigError
-from models.estimator.corr_finetune import CorrFineTuner
+from wrenchd.models.errors import ConfigError
+from wrenchd.models.estimator.corr_finetune import CorrFineTuner
 
 
 def _net(seed: int = 0) -> nn.Sequential:

@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 import torch
 
-from models.errors import DataError
-from models.estimator.correction import Corr
-from models.estimator.training import (CorrTrainer, corr_inputs, fit_corr, predict_segments,
+from wrenchd.models.errors import DataError
+from wrenchd.models.estimator.correction import Corr
+from wrenchd.models.estimator.training import (CorrTrainer, corr_inputs, fit_corr, predict_segments,
                                        recipe)
 
 

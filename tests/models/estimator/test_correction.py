@@ -4,11 +4,11 @@ import numpy as np
 import pytest
 import torch
 
-from models.errors import ConfigError, DataError
-from models.estimator.correction import Corr, CorrKernel, HistoryWindow, Xfer, XferConfig
-from models.estimator.features import history_windows
-from models.estimator.free_space import FreeSpaceConfig, FreeSpaceModel
-from models.estimator.kernels import RecurrentStream
+from wrenchd.models.errors import ConfigError, DataError
+from wrenchd.models.estimator.correction import Corr, CorrKernel, HistoryWindow, Xfer, XferConfig
+from wrenchd.models.estimator.features import history_windows
+from wrenchd.models.estimator.free_space import FreeSpaceConfig, FreeSpaceModel
+from wrenchd.models.estimator.kernels import RecurrentStream
 
 
 def _features(session, n):

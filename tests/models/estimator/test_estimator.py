@@ -4,11 +4,11 @@ import numpy as np
 import pytest
 import torch
 
-from models.errors import ConfigError, DataError
-from models.estimator.correction import Xfer
-from models.estimator.estimator import EstimatorConfig, TwoStepEstimator
-from models.estimator.free_space import FreeSpaceModel
-from models.series import JointStates
+from wrenchd.models.errors import ConfigError, DataError
+from wrenchd.models.estimator.correction import Xfer
+from wrenchd.models.estimator.estimator import EstimatorConfig, TwoStepEstimator
+from wrenchd.models.estimator.free_space import FreeSpaceModel
+from wrenchd.models.series import JointStates
 
 
 def _with_gap(session, n=300, gap_at=120, gap_s=0.5):

@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
-from models.errors import DataError
-from models.estimator.features import history_windows, joint_features, segment_starts, segments
+from wrenchd.models.errors import DataError
+from wrenchd.models.estimator.features import history_windows, joint_features, segment_starts, segments
 
 
 def test_joint_features_orders_positions_then_velocities():

@@ -5,9 +5,9 @@ import pytest
 import torch
 from torch import nn
 
-from models.errors import DataError
-from models.estimator.free_space import JOINT_GROUPS, FreeSpaceConfig, FreeSpaceModel
-from models.estimator.kernels import RecurrentStream
+from wrenchd.models.errors import DataError
+from wrenchd.models.estimator.free_space import JOINT_GROUPS, FreeSpaceConfig, FreeSpaceModel
+from wrenchd.models.estimator.kernels import RecurrentStream
 
 
 def _features(session, n=None):

@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from adapters.sim.scenarios import run_scenario
-from models.errors import ConfigError
-from models.estimator.free_space import FreeSpaceModel
-from models.estimator.pretrained import PRETRAINED, load_pretrained, pretrained_path
+from wrenchd.adapters.sim.scenarios import run_scenario
+from wrenchd.models.errors import ConfigError
+from wrenchd.models.estimator.free_space import FreeSpaceModel
+from wrenchd.models.estimator.pretrained import PRETRAINED, load_pretrained, pretrained_path
 
 
 #: RMSE / torque std on a fresh 30 s session (seed 777, never trained on). Measured with the

@@ -5,12 +5,12 @@ import numpy as np
 import pytest
 import torch
 
-from models.errors import ConfigError
-from models.estimator.checkpoint import load_checkpoint, save_checkpoint, save_result
-from models.estimator.correction import Xfer
-from models.estimator.estimator import TwoStepEstimator
-from models.estimator.free_space import FreeSpaceConfig
-from models.estimator.training import RECIPES, TrainConfig, fit_free_space, fit_xfer, recipe
+from wrenchd.models.errors import ConfigError
+from wrenchd.models.estimator.checkpoint import load_checkpoint, save_checkpoint, save_result
+from wrenchd.models.estimator.correction import Xfer
+from wrenchd.models.estimator.estimator import TwoStepEstimator
+from wrenchd.models.estimator.free_space import FreeSpaceConfig
+from wrenchd.models.estimator.training import RECIPES, TrainConfig, fit_free_space, fit_xfer, recipe
 
 
 def _rmse(err):

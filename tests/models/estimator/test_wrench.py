@@ -1,11 +1,11 @@
 import numpy as np
 import pytest
 
-from adapters.sim.scenarios import run_scenario
-from models.errors import DataError
-from models.estimator.wrench import (WrenchMap, WrenchMapConfig, damped_wrench,
+from wrenchd.adapters.sim.scenarios import run_scenario
+from wrenchd.models.errors import DataError
+from wrenchd.models.estimator.wrench import (WrenchMap, WrenchMapConfig, damped_wrench,
                                      external_torque)
-from models.physics.kinematics import PSMKinematics
+from wrenchd.models.physics.kinematics import PSMKinematics
 
 #: Insertion at which the wrist-pitch axis passes through the remote centre: 0.4318 m (DH
 #: insertion offset) - 0.4162 m (tool length) [m]. The tip Jacobian is singular there.

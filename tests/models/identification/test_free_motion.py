@@ -3,17 +3,17 @@
 import numpy as np
 import pytest
 
-from adapters.sim.scenarios import FREE_SPACE_WORKSPACE
-from adapters.sim.simulator import simulate
-from adapters.sim.trajectory import FourierTrajectory
-from models.errors import ConfigError
-from models.identification.base_parameters import structural_base
-from models.identification.differentiation import smoothed_acceleration, zero_phase_velocity
-from models.identification.free_motion import identify_free_motion
-from models.physics.dynamics import RigidBodyModel
-from models.physics.effects import EFFECTS, Motion
-from models.physics.effects.inertial import column_index, column_name, inertial_columns
-from models.physics.model import PhysicsModel
+from wrenchd.adapters.sim.scenarios import FREE_SPACE_WORKSPACE
+from wrenchd.adapters.sim.simulator import simulate
+from wrenchd.adapters.sim.trajectory import FourierTrajectory
+from wrenchd.models.errors import ConfigError
+from wrenchd.models.identification.base_parameters import structural_base
+from wrenchd.models.identification.differentiation import smoothed_acceleration, zero_phase_velocity
+from wrenchd.models.identification.free_motion import identify_free_motion
+from wrenchd.models.physics.dynamics import RigidBodyModel
+from wrenchd.models.physics.effects import EFFECTS, Motion
+from wrenchd.models.physics.effects.inertial import column_index, column_name, inertial_columns
+from wrenchd.models.physics.model import PhysicsModel
 
 
 def _motion(robot, n=300, seed=1):

@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from models.errors import ConfigError
-from models.physics.dynamics import RigidBodyConfig, RigidBodyModel
-from models.physics.kinematics import PSM_LOWER, PSM_UPPER
+from wrenchd.models.errors import ConfigError
+from wrenchd.models.physics.dynamics import RigidBodyConfig, RigidBodyModel
+from wrenchd.models.physics.kinematics import PSM_LOWER, PSM_UPPER
 
 
 @pytest.fixture(scope="module")

@@ -6,14 +6,14 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from models.errors import ConfigError
-from models.physics.effects import EFFECTS, Motion
-from models.physics.effects.body_wall import BodyWall
-from models.physics.effects.contact import ExternalContact
-from models.physics.effects.drift import drift_factor, DriftParams
-from models.physics.effects.payload import PayloadMass
-from models.physics.dynamics import RigidBodyConfig, LinkInertia, RigidBodyModel
-from models.physics.model import PhysicsModel
+from wrenchd.models.errors import ConfigError
+from wrenchd.models.physics.effects import EFFECTS, Motion
+from wrenchd.models.physics.effects.body_wall import BodyWall
+from wrenchd.models.physics.effects.contact import ExternalContact
+from wrenchd.models.physics.effects.drift import drift_factor, DriftParams
+from wrenchd.models.physics.effects.payload import PayloadMass
+from wrenchd.models.physics.dynamics import RigidBodyConfig, LinkInertia, RigidBodyModel
+from wrenchd.models.physics.model import PhysicsModel
 
 LIBRARY = {"coulomb_friction", "viscous_friction", "stribeck_friction", "joint_offset",
            "spring", "seal_friction", "body_wall", "payload_mass", "cable_coupling",

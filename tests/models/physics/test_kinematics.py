@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from models.errors import DataError
-from models.physics.kinematics import (
+from wrenchd.models.errors import DataError
+from wrenchd.models.physics.kinematics import (
     PSM_DH, PSM_LOWER, PSM_UPPER, TIP_OFFSET_M, PSMKinematics,
 )
 

@@ -10,10 +10,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from models.errors import ConfigError
-from models.physics.effects import EFFECTS, Motion
-from models.physics.effects.drift import Drift
-from models.physics.effects.seal import SEALED_JOINTS, SealFriction, SealParams, seal_force
+from wrenchd.models.errors import ConfigError
+from wrenchd.models.physics.effects import EFFECTS, Motion
+from wrenchd.models.physics.effects.drift import Drift
+from wrenchd.models.physics.effects.seal import SEALED_JOINTS, SealFriction, SealParams, seal_force
 
 P = SealParams()
 INSERTION, ROLL = 0, 1                         # index into each parameter pair
