@@ -2,38 +2,23 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from adapters.csv_psm import (
+from wrenchd.adapters.csv_psm import (
     PAPER_HEADER,
     read_paper_csv,
     read_psm_csv,
     read_wpi_csv,
     write_paper_csv,
 )
-from models.errors import DataError
-from models.series import JointStates
+from wrenchd.models.errors import DataError
+from wrenchd.models.series import JointStates
 
-WPI_ENV = "WRENCHD_WPI_DATA"
-
-
-@pytest.fixture
-def wpi_dir() -> Path:
-    value = os.environ.get(WPI_ENV)
-    if not value:
-        pytest.skip(f"{WPI_ENV} is not set; point it at the directory of the WPI PSM CSV "
-                    "recordings (e.g. /work/shared/data/wpi-psm) to run the real-data tests")
-    path = Path(value)
-    assert (path / "one_no_weight.csv").is_file(), f"{WPI_ENV}={value} has no one_no_weight.csv"
-    return path
-
-
-def test_wpi_recording_reads_in_physical_units(wpi_dir):
-    js, jaw = read_wpi_csv(wpi_dir / "one_no_weight.csv")
+def test_wpi_recording_reads_in_physical_units(wpi_data):
+    js, jaw = read_wpi_csv(wpi_data / "one_no_weight.csv")
     assert len(js) == 5999 and js.position.shape == (5999, 6)
     assert jaw.shape == (5999, 3)
     np.testing.assert_allclose(np.diff(js.t), 0.005, rtol=0, atol=1e-12)
@@ -49,8 +34,8 @@ def test_wpi_recording_reads_in_physical_units(wpi_dir):
     assert np.corrcoef(dq_numeric, js.velocity[:, 0])[0, 1] > 0.99
 
 
-def test_every_wpi_file_reads_and_auto_detects(wpi_dir):
-    files = sorted(wpi_dir.glob("*.csv"))
+def test_every_wpi_file_reads_and_auto_detects(wpi_data):
+    files = sorted(wpi_data.glob("*.csv"))
     assert len(files) == 6
     for path in files:
         js, _ = read_wpi_csv(path)
@@ -59,8 +44,8 @@ def test_every_wpi_file_reads_and_auto_detects(wpi_dir):
         np.testing.assert_array_equal(auto.position, js.position)
 
 
-def test_paper_layout_round_trips_the_real_data_exactly(wpi_dir, tmp_path):
-    js, _ = read_wpi_csv(wpi_dir / "two.csv")
+def test_paper_layout_round_trips_the_real_data_exactly(wpi_data, tmp_path):
+    js, _ = read_wpi_csv(wpi_data / "two.csv")
     for header in (True, False):
         path = tmp_path / f"paper_{header}.csv"
         write_paper_csv(path, js, header=header)

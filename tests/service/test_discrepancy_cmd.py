@@ -8,31 +8,27 @@ import json
 import os
 import subprocess
 import sys
-from pathlib import Path
 
 import pytest
 
-from models.physics.model import PhysicsModel
+from wrenchd.models.physics.model import PhysicsModel
 
-DATA = Path(os.environ.get("WRENCHD_WPI_DATA", Path(__file__).parents[3] / "shared/data/wpi-psm"))
 
 
 def wrenchd(*args, check=True):
     env = dict(os.environ, OMP_NUM_THREADS="1")
-    return subprocess.run([sys.executable, "-m", "service.cli", *args], capture_output=True,
+    return subprocess.run([sys.executable, "-m", "wrenchd", *args], capture_output=True,
                           text=True, check=check, timeout=300, env=env)
 
 
-@pytest.mark.skipif(not (DATA / "one_205g_parallel.csv").is_file(),
-                    reason=f"WPI recordings absent ({DATA})")
-def test_real_load_is_localised_named_and_the_gap_shrinks(tmp_path):
+def test_real_load_is_localised_named_and_the_gap_shrinks(tmp_path, wpi_data):
     model = tmp_path / "ident.json"
-    wrenchd("identify", "--measured", str(DATA / "one_no_weight.csv"), "-o", str(model))
+    wrenchd("identify", "--measured", str(wpi_data / "one_no_weight.csv"), "-o", str(model))
     ident = PhysicsModel.load(model)
     assert {"inertial_delta", "coulomb_friction", "viscous_friction", "joint_offset"} <= set(ident.effects)
     out = tmp_path / "out.json"
     report = tmp_path / "report"
-    wrenchd("discrepancy", "--model", str(model), "--measured", str(DATA / "one_205g_parallel.csv"),
+    wrenchd("discrepancy", "--model", str(model), "--measured", str(wpi_data / "one_205g_parallel.csv"),
             "--report", str(report), "--json", str(out))
     res = json.loads(out.read_text())
     # the contract
@@ -99,11 +95,9 @@ def test_discrepancy_sweep_writes_the_study_in_strict_json(tmp_path):
     assert "recall 100.0 %" in run.stdout
 
 
-@pytest.mark.skipif(not (DATA / "one_205g_parallel.csv").is_file(),
-                    reason=f"WPI recordings absent ({DATA})")
-def test_discrepancy_real_names_the_load_on_both_loaded_runs(tmp_path):
+def test_discrepancy_real_names_the_load_on_both_loaded_runs(tmp_path, wpi_data):
     out = tmp_path / "real"
-    wrenchd("discrepancy-real", "--data", str(DATA), "--out", str(out))
+    wrenchd("discrepancy-real", "--data", str(wpi_data), "--out", str(out))
     summary = _strict((out / "summary.json").read_text())
     for run in ("one_105g_parallel.csv", "one_205g_parallel.csv"):
         assert summary["named"][run][0].startswith("payload_mass")
