@@ -16,7 +16,7 @@ import pytest
 import zenoh
 
 from wrenchd.adapters.zenoh_io import ZenohConfig, open_session
-from wrenchd.service.config import load_settings
+from wrenchd.service.runtime.settings import load_settings
 from tests.deploy.test_router_acl import EC_KEY, free_port, open_router, openssl
 
 DEPLOY = Path(__file__).resolve().parents[2] / "deploy"

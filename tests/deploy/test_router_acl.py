@@ -11,7 +11,7 @@ import pytest
 import zenoh
 
 from wrenchd.adapters.zenoh_io import ZenohConfig, open_session
-from wrenchd.service.config import load_settings
+from wrenchd.service.runtime.settings import load_settings
 
 DEPLOY = Path(__file__).resolve().parents[2] / "deploy"
 ROUTER = DEPLOY / "zenoh" / "router.json5"

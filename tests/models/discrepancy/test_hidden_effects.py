@@ -11,7 +11,7 @@ import json
 import pytest
 
 from wrenchd.models.discrepancy.workflow import run_discrepancy
-from wrenchd.service.hidden_effects import judge, make_case
+from wrenchd.service.studies.hidden_effects import judge, make_case
 
 
 def _run(hidden, seed):

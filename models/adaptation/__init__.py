@@ -1,0 +1,1 @@
+"""Lifelong adaptation of the correction net: the deterministic adapter and its sample buffer."""

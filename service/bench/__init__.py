@@ -1,0 +1,1 @@
+"""Benchmarks: speed measured, never asserted in tests."""

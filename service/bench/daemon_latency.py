@@ -1,0 +1,351 @@
+"""``wrenchd bench service``: end-to-end latency of the daemon over loopback zenoh.
+
+The daemon runs as a real subprocess (``robot = "external"``, adaptation on: its calibration
+phase trains the correction net eagerly, so the worker process is busy the whole time). This
+process plays the robots: one thread publishes pre-encoded joint states of a simulated trocar
+session for every arm at ``rate_hz``, and a subscriber per arm records when each wrench comes
+back. Latency = arrival of the wrench - publication of its joint state, both on this
+process's monotonic clock; wrenches are matched to joint states by their stamp.
+
+Reported: ``e2e_p50_us``, ``e2e_p99_us`` (all arms pooled), ``dropped`` (joint states
+published without a wrench back; the daemon's own ring drops, reported per arm, are among
+them), ``rate_hz`` (wrenches per
+second per arm, median over arms), and per-arm details.
+"""
+
+from __future__ import annotations
+
+import gc
+import itertools
+import json
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from wrenchd.adapters.messages import encode_joint_state
+from wrenchd.adapters.zenoh_io import ZenohConfig, open_session
+from wrenchd.service.runtime.scheduling import enter_realtime, normal_scheduling, realtime_below
+
+STEAL_PERIOD_S = 0.1    # how often the hypervisor's steal counter is read while publishing
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _config(path: Path, endpoint: str, arms: list[str], log_dir: Path,
+            adaptation: bool = True, log: bool = True,
+            pin: tuple[list[int], list[int]] | None = None,
+            realtime: int | str = "auto") -> None:
+    lines = ['robot = "external"', "[cpus]", f"realtime_priority = {json.dumps(realtime)}"]
+    if pin is not None:
+        lines += [f"daemon = {pin[0]}", f"worker = {pin[1]}"]
+    lines += ["[zenoh]", f'listen = ["{endpoint}"]', "[log]",
+             f'directory = "{log_dir}"', f"enabled = {str(log).lower()}", "[ring]",
+             "capacity = 4000"]
+    for arm in arms:
+        lines += ["[[arms]]", f'name = "{arm}"', 'encoding = "json"',
+                  "[arms.pipeline.adaptation]", f"enabled = {str(adaptation).lower()}"]
+    path.write_text("\n".join(lines) + "\n")
+
+
+def _rss_mb(pid: int) -> float:
+    """Resident memory of ``pid`` and its children [MB] (Linux /proc)."""
+    total = 0
+    pids = [pid]
+    try:
+        children = Path(f"/proc/{pid}/task/{pid}/children").read_text().split()
+        pids += [int(c) for c in children]
+    except OSError:
+        pass
+    for p in pids:
+        try:
+            for line in Path(f"/proc/{p}/status").read_text().splitlines():
+                if line.startswith("VmRSS:"):
+                    total += int(line.split()[1])
+        except OSError:
+            continue
+    return total / 1024.0
+
+
+def _cpu_s(pid: int) -> float:
+    """User + system CPU time of one process so far [s] (Linux /proc)."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return float("nan")
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def _steal_ticks() -> int | None:
+    """CPU time the hypervisor gave to others while this machine's CPUs wanted to run, summed
+    over all CPUs, in clock ticks (Linux /proc/stat ``steal``); None where unknown."""
+    try:
+        with open("/proc/stat") as f:
+            fields = f.readline().split()
+        return int(fields[8]) if fields[0] == "cpu" and len(fields) > 8 else None
+    except (OSError, ValueError):
+        return None
+
+
+def _stolen_windows(steal: list[tuple[float, int | None]]) -> list[tuple[float, float]]:
+    """``[(start_s, end_s)]`` of the sampling windows in which the hypervisor stole CPU time.
+    ``steal`` is ``[(time_s, cumulative ticks)]``; a window is one sampling interval."""
+    out = []
+    for (t0, a), (t1, b) in itertools.pairwise(steal):
+        if a is not None and b is not None and b > a:
+            out.append((t0, t1))
+    return out
+
+
+def _children(pid: int) -> list[int]:
+    try:
+        return [int(c) for c in Path(f"/proc/{pid}/task/{pid}/children").read_text().split()]
+    except OSError:
+        return []
+
+
+def _drain(stream, path: Path) -> threading.Thread:
+    """Copy a child's output stream to ``path`` until it closes, in a daemon thread.
+
+    The daemon prints a status line per arm every second from its estimation thread; a pipe
+    nobody reads is full after ~64 KB (about 11 minutes) and the next print, and with it
+    estimation, blocks (measured: a status line every 5 ms stalled it within seconds)."""
+    def copy() -> None:
+        with open(path, "w") as sink:
+            for line in stream:
+                sink.write(line)
+    thread = threading.Thread(target=copy, name=f"drain-{path.name}", daemon=True)
+    thread.start()
+    return thread
+
+
+def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 20.0,
+                  warmup_s: float = 3.0, adaptation: bool = True,
+                  log: bool = True, floor: bool = False, pin: bool = False,
+                  realtime: int | str = "auto") -> dict[str, Any]:
+    """Run the benchmark; returns the result dictionary.
+
+    Also samples the daemon's resident memory (with its worker) once a second: the soak run
+    is this benchmark with a long ``duration_s`` (``wrenchd bench soak``). With ``floor``
+    the daemon is replaced by :mod:`wrenchd.service.bench.floor` (its plumbing without estimation:
+    ``wrenchd bench floor``). With ``pin`` the daemon gets the last CPU to itself and its
+    worker and this process share the others (the daemon's ``cpus`` settings). ``realtime``
+    is the daemon's ``[cpus] realtime_priority`` (``auto``, ``off`` or a SCHED_FIFO priority),
+    and this process's publisher and subscriber take the same: a robot's publisher runs in the
+    real-time class, and a bench left in the normal class would be measured waiting behind the
+    machine's other work (measured under load ~4: p99 6.3-11.7 ms with only the daemon
+    real-time, 3.2 ms with both). The floor bench runs in the normal class."""
+    from wrenchd.adapters.sim.scenarios import run_scenario
+    from wrenchd.adapters.sim.simulator import SimulatorConfig
+
+    arms = [f"PSM{k + 1}" for k in range(n_arms)]
+    total_s = warmup_s + duration_s
+    # a long soak repeats one simulated minute (time keeps increasing)
+    block_s = min(total_s, 60.0)
+    sim = run_scenario("trocar", block_s + 1.0, 11,
+                       config=SimulatorConfig(publish_rate_hz=rate_hz,
+                                              internal_rate_hz=max(1000.0, rate_hz)))
+    js = sim.joint_states
+    n = int(total_s * rate_hz)
+    m = int(block_s * rate_hz)
+    stamps = [int(round(i * 1e9 / rate_hz)) for i in range(n)]
+    payloads = [encode_joint_state("json", stamps[i], js.names, js.position[i % m],
+                                   js.velocity[i % m], js.effort[i % m]) for i in range(n)]
+    endpoint = f"tcp/127.0.0.1:{_free_port()}"
+    workdir = Path(tempfile.mkdtemp(prefix="wrenchd-bench-"))
+    placement = None
+    if pin:
+        cpus = sorted(os.sched_getaffinity(0))
+        if len(cpus) < 2:
+            raise RuntimeError("--pin needs at least two CPUs")
+        placement = ([cpus[-1]], cpus[:-1])
+        os.sched_setaffinity(0, placement[1])
+    _config(workdir / "bench.toml", endpoint, arms, workdir / "logs", adaptation, log, placement,
+            realtime)
+    command = ([sys.executable, "-m", "wrenchd.service.bench.floor", "--listen", endpoint, "--arms",
+                *arms] if floor else
+               [sys.executable, "-m", "wrenchd", "serve", "--config",
+                str(workdir / "bench.toml")])
+    daemon = subprocess.Popen(
+        command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        preexec_fn=(lambda: os.sched_setaffinity(0, placement[0])) if placement else None)
+    sent_ns = {arm: np.zeros(n, dtype=np.int64) for arm in arms}
+    received: dict[str, list[tuple[int, bytes]]] = {arm: [] for arm in arms}
+    session = None
+    bench_priority = None
+    status: dict[str, Any] = {}
+    drains: list[threading.Thread] = []
+    try:
+        for _ in range(len(arms)):
+            line = daemon.stdout.readline()
+            if "listening" not in line:
+                raise RuntimeError(f"daemon did not start: {line}{daemon.stderr.read()}")
+        drains = [_drain(daemon.stdout, workdir / "daemon.out"),
+                  _drain(daemon.stderr, workdir / "daemon.err")]
+        # as the daemon's setting says (its default takes the real-time class where it may)
+        bench_priority = None if floor else enter_realtime(realtime)
+        if bench_priority is not None:
+            for thread in drains:          # they take the GIL too, beside the callbacks
+                realtime_below(bench_priority, thread.native_id)
+        session = open_session(ZenohConfig(connect=[endpoint]))
+        subs = [session.declare_subscriber(
+            f"dvrk/{arm}/wrenchd/measured_cf",
+            lambda s, arm=arm: received[arm].append((time.perf_counter_ns(),
+                                                     s.payload.to_bytes())))
+            for arm in arms]
+        pubs = {arm: session.declare_publisher(f"dvrk/{arm}/measured_js") for arm in arms}
+        time.sleep(1.0)                                     # let the routes settle
+        period_ns = int(1e9 / rate_hz)
+        # Pace by sleeping, never by spinning: a spinning publisher holds the GIL and delays
+        # this process's own subscriber callbacks, which would be measured as daemon latency.
+        sys.setswitchinterval(1e-4)
+        # This process's own GC pauses would delay its subscriber callbacks and be measured as
+        # daemon latency: freeze what is loaded and collect nothing while measuring.
+        gc.collect()
+        gc.freeze()
+        gc.disable()
+        rss: list[tuple[float, float]] = []
+        steal: list[tuple[float, int | None]] = []       # (time since start s, ticks)
+        start = time.perf_counter_ns()
+        next_rss = 0.0
+        next_steal = 0.0
+        cpu_at: dict[str, float] = {}
+        first = int(warmup_s * rate_hz)
+        for i in range(n):
+            due = start + i * period_ns
+            if i == first:              # CPU time spent by the daemon and its worker from here
+                cpu_at = {"daemon": _cpu_s(daemon.pid), "worker": sum(
+                    _cpu_s(c) for c in _children(daemon.pid)), "wall": time.monotonic()}
+            if (due - start) / 1e9 >= next_steal:
+                steal.append(((time.perf_counter_ns() - start) / 1e9, _steal_ticks()))
+                next_steal += STEAL_PERIOD_S
+            if (due - start) / 1e9 >= next_rss:
+                rss.append((next_rss, _rss_mb(daemon.pid)))
+                next_rss += 1.0
+            now = time.perf_counter_ns()
+            if due > now:
+                time.sleep((due - now) / 1e9)
+            for arm in arms:
+                sent_ns[arm][i] = time.perf_counter_ns()
+                pubs[arm].put(payloads[i])
+        cpu = {"daemon": _cpu_s(daemon.pid),
+               "worker": sum(_cpu_s(c) for c in _children(daemon.pid)),
+               "wall": time.monotonic()}
+        steal.append(((time.perf_counter_ns() - start) / 1e9, _steal_ticks()))
+        time.sleep(2.0)                                     # the last wrenches come back
+        gc.enable()
+        for arm in arms if not floor else []:          # the floor answers no status
+            replies = list(session.get(f"dvrk/{arm}/wrenchd/status", timeout=5.0))
+            ok = [r.ok for r in replies if r.ok is not None]
+            status[arm] = json.loads(ok[0].payload.to_bytes()) if ok else {}
+        for sub in subs:
+            sub.undeclare()
+        for pub in pubs.values():
+            pub.undeclare()
+    finally:
+        if session is not None:
+            session.close()
+        if bench_priority is not None:
+            normal_scheduling()
+        daemon.send_signal(signal.SIGINT)
+        try:
+            if drains:                           # the drain threads own its output now
+                daemon.wait(timeout=60)
+                for thread in drains:
+                    thread.join(timeout=10)
+            else:
+                daemon.communicate(timeout=60)
+        except subprocess.TimeoutExpired:
+            daemon.kill()
+        if daemon.returncode == 0:
+            shutil.rmtree(workdir, ignore_errors=True)   # kept when the daemon failed
+    index = {s: i for i, s in enumerate(stamps)}
+    stolen = _stolen_windows(steal)
+    stolen_starts = np.array([a for a, _ in stolen])
+    stolen_ends = np.array([b for _, b in stolen])
+    latencies, per_arm = [], {}
+    clean: list[float] = []          # latencies during which the hypervisor stole nothing
+    for arm in arms:
+        lat, got = [], np.zeros(n, dtype=bool)
+        lat_at: list[float] = []                          # send time of each latency [s]
+        for arrived, payload in received[arm]:
+            m = json.loads(payload)
+            stamp = m["header"]["stamp"]["sec"] * 1_000_000_000 + m["header"]["stamp"]["nanosec"]
+            i = index.get(stamp)
+            if i is None:
+                continue
+            got[i] = True
+            if i >= first:
+                lat.append((arrived - sent_ns[arm][i]) / 1e3)
+                lat_at.append(i / rate_hz)
+                t_sent, t_back = (sent_ns[arm][i] - start) / 1e9, (arrived - start) / 1e9
+                if not np.any((stolen_starts < t_back) & (stolen_ends > t_sent)):
+                    clean.append(lat[-1])
+        missing = int((~got).sum())
+        ring = int(status.get(arm, {}).get("counters", {}).get("dropped", 0))
+        arr = np.array(lat) if lat else np.array([np.nan])
+        per_arm[arm] = {"e2e_p50_us": float(np.percentile(arr, 50)),
+                        "e2e_p99_us": float(np.percentile(arr, 99)),
+                        "e2e_max_us": float(np.max(arr)), "missing": missing,
+                        "ring_dropped": ring, "received": int(got.sum()),
+                        "rate_hz": float(got[first:].sum() / duration_s),
+                        "model_version": status.get(arm, {}).get("model", {}).get("version"),
+                        "adaptation_rounds": status.get(arm, {}).get("counters", {}).get(
+                            "rounds"),
+                        # when the worst ones happened: [send time s, latency ms], worst first
+                        "e2e_worst": [[round(lat_at[k], 3), round(lat[k] / 1e3, 1)]
+                                      for k in np.argsort(lat)[::-1][:10]] if lat else []}
+        latencies.extend(lat)
+    pooled = np.array(latencies) if latencies else np.array([np.nan])
+    ticks = [(t, k) for t, k in steal if k is not None and t >= warmup_s]
+    hz = os.sysconf("SC_CLK_TCK")
+    # The hypervisor of a shared VM stops its CPUs now and then (measured here: up to 0.4 s of
+    # CPU time in one second); what arrives meanwhile waits, whatever the daemon does.
+    hypervisor = {
+        "steal_cpu_s": round((ticks[-1][1] - ticks[0][1]) / hz, 3) if len(ticks) > 1 else None,
+        "steal_windows": sum(1 for a, _ in stolen if a >= warmup_s),
+        "steal_window_s": STEAL_PERIOD_S,
+        "e2e_p99_us_without_steal": float(np.percentile(clean, 99)) if clean else None,
+        "samples_without_steal": len(clean)}
+    after_warmup = [mb for t, mb in rss if t >= warmup_s] or [np.nan]
+    memory = {"rss_start_mb": round(after_warmup[0], 1), "rss_end_mb": round(after_warmup[-1], 1),
+              "rss_max_mb": round(float(np.max(after_warmup)), 1),
+              "rss_growth_mb": round(after_warmup[-1] - after_warmup[0], 1),
+              "rss_every_60s_mb": [round(mb, 1) for t, mb in rss if t % 60 == 0]}
+    estimated = sum(a["rate_hz"] for a in per_arm.values()) * duration_s   # after warm-up
+    usage = {"daemon_cpu_us_per_sample": round(
+                 (cpu["daemon"] - cpu_at["daemon"]) * 1e6 / max(estimated, 1.0), 1),
+             "daemon_cpu_fraction": round((cpu["daemon"] - cpu_at["daemon"])
+                                          / (cpu["wall"] - cpu_at["wall"]), 3),
+             "worker_cpu_fraction": round((cpu["worker"] - cpu_at["worker"])
+                                          / (cpu["wall"] - cpu_at["wall"]), 3),
+             "load_average_1min": round(os.getloadavg()[0], 2)}
+    return {**memory, **usage, **hypervisor, "e2e_p50_us": float(np.percentile(pooled, 50)),
+            "e2e_p99_us": float(np.percentile(pooled, 99)),
+            # samples without a wrench back (the daemon's ring drops are among them)
+            "dropped": int(sum(a["missing"] for a in per_arm.values())),
+            "rate_hz": float(np.median([a["rate_hz"] for a in per_arm.values()])),
+            "arms": n_arms, "target_rate_hz": rate_hz, "duration_s": duration_s,
+            "warmup_s": warmup_s, "cpu_count": os.cpu_count(),
+            "adaptation": adaptation and not floor, "mcap_log": log and not floor,
+            "daemon": "bench floor (no estimation)" if floor else "wrenchd serve",
+            "cpus": ({"daemon": placement[0], "worker_and_bench": placement[1]}
+                     if placement else None),
+            # the daemon's sample path (its default takes the real-time class where permitted)
+            "realtime_priority": None if floor else next(
+                (st.get("realtime_priority") for st in status.values()), realtime),
+            "bench_realtime_priority": bench_priority,
+            "per_arm": per_arm}

@@ -1,0 +1,79 @@
+"""The latency floor of ``wrenchd bench service`` on this machine (``wrenchd bench floor``).
+
+A stand-in for the daemon with the daemon's plumbing and none of its work: per arm a
+subscriber whose callback puts the payload in a :class:`~wrenchd.service.runtime.daemon.SampleRing`, one
+thread that drains the rings, reads each joint state's stamp and publishes a zero wrench with
+that stamp. What ``bench service`` measures against it is what zenoh on loopback, the
+callback-to-thread hand-off, the GIL and this machine's scheduling cost before any
+estimation: the part of the daemon's latency that no faster estimator can remove.
+
+Run by the bench as ``python -m wrenchd.service.bench.floor --listen ENDPOINT --arms PSM1 ...``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import threading
+
+import numpy as np
+import orjson
+
+from wrenchd.adapters.messages import encode_wrench
+from wrenchd.adapters.zenoh_io import ZenohConfig, open_session
+from wrenchd.service.runtime.daemon import SWITCH_INTERVAL_S, SampleRing
+
+_ZERO = np.zeros(6)
+
+
+def _serve(rings: dict[str, SampleRing], pubs: dict, wake: threading.Event,
+           stop: threading.Event) -> None:
+    while not stop.is_set():
+        wake.wait(0.05)
+        wake.clear()
+        for arm, ring in rings.items():
+            for _, payload in ring.drain():
+                try:
+                    stamp = orjson.loads(payload)["header"]["stamp"]
+                    stamp_ns = stamp["sec"] * 1_000_000_000 + stamp["nanosec"]
+                except (orjson.JSONDecodeError, KeyError, TypeError):
+                    continue
+                pubs[arm].put(encode_wrench("json", stamp_ns, _ZERO))
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m wrenchd.service.bench.floor")
+    parser.add_argument("--listen", required=True, help="zenoh endpoint to listen on")
+    parser.add_argument("--arms", nargs="+", default=["PSM1"])
+    args = parser.parse_args(argv)
+    sys.setswitchinterval(SWITCH_INTERVAL_S)
+    stop, wake = threading.Event(), threading.Event()
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    session = open_session(ZenohConfig(listen=[args.listen]))
+    rings = {arm: SampleRing(4000, wake) for arm in args.arms}
+    pubs = {arm: session.declare_publisher(f"dvrk/{arm}/wrenchd/measured_cf")
+            for arm in args.arms}
+    subs = [session.declare_subscriber(
+        f"dvrk/{arm}/measured_js",
+        lambda s, ring=rings[arm]: ring.put((0, s.payload.to_bytes()))) for arm in args.arms]
+    thread = threading.Thread(target=_serve, args=(rings, pubs, wake, stop), daemon=True)
+    thread.start()
+    for arm in args.arms:
+        print(f"bench floor: {arm} listening", flush=True)
+    try:
+        while not stop.wait(0.2):
+            pass
+    finally:
+        for sub in subs:
+            sub.undeclare()
+        thread.join(timeout=5.0)
+        for pub in pubs.values():
+            pub.undeclare()
+        session.close()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,148 @@
+"""``wrenchd bench``: speed measured, not asserted.
+
+``inference`` times one streaming step of the whole two-step estimator (the four step-1 group
+networks, Corr and the wrench map) on one core, and batched offline inference, on a simulated
+``trocar-contact`` session. Latency does not depend on the weights' values, so freshly
+initialised networks (normalised on the session) are used; the figure is the cost of the
+computation the service runs per sample.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def bench_inference(duration_s: float = 60.0, seed: int = 3, warmup: int = 500) -> dict:
+    """Returns ``{"step_p50_us", "step_p99_us", "batch_samples_per_s", ...}``."""
+    import torch
+
+    torch.set_num_threads(1)
+    from wrenchd.adapters.sim.scenarios import run_scenario
+    from wrenchd.models.estimator.correction import Corr
+    from wrenchd.models.estimator.estimator import TwoStepEstimator
+    from wrenchd.models.estimator.free_space import FreeSpaceModel
+
+    torch.manual_seed(seed)
+    js = run_scenario("trocar-contact", duration_s, seed).joint_states
+    x = np.c_[js.position, js.velocity]
+    base = FreeSpaceModel()
+    base.set_input_normalisation(x)
+    base.set_output_normalisation(js.effort)
+    corr = Corr()
+    corr.set_normalisation(x, js.effort)
+    est = TwoStepEstimator(base.eval(), corr)
+    for i in range(min(warmup, len(js))):
+        est.step_one(js.t[i], js.position[i], js.velocity[i], js.effort[i])
+    est.reset_state()
+    lat_us = np.empty(len(js))
+    clock = time.perf_counter_ns
+    for i in range(len(js)):
+        start = clock()
+        est.step_one(js.t[i], js.position[i], js.velocity[i], js.effort[i])
+        lat_us[i] = (clock() - start) / 1e3
+    start = time.perf_counter()
+    est.predict_batch(js)
+    batch_s = time.perf_counter() - start
+    return {
+        "step_p50_us": round(float(np.percentile(lat_us, 50)), 1),
+        "step_p99_us": round(float(np.percentile(lat_us, 99)), 1),
+        "batch_samples_per_s": round(len(js) / batch_s),
+        "samples": len(js),
+        "estimator": "step 1 (4 group LSTMs) + Corr + damped J^-T wrench",
+        "threads": 1,
+    }
+
+
+def run(kind: str, json_path: str | None, duration_s: float, arms: int = 1,
+        rate_hz: float = 1000.0, pin: bool = False, realtime: int | str = "auto") -> int:
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    if kind == "inference":
+        result = bench_inference(duration_s=duration_s)
+    elif kind == "arm":
+        result = bench_arm_thread(duration_s=duration_s)
+    elif kind in ("service", "soak", "floor"):
+        from wrenchd.service.bench.daemon_latency import bench_service
+
+        result = bench_service(n_arms=arms, rate_hz=rate_hz, duration_s=duration_s,
+                               floor=kind == "floor", pin=pin, realtime=realtime)
+    elif kind == "replay":
+        from wrenchd.service.cli.replay import run_replay_bench
+
+        run_replay_bench(json_path, duration_s)        # prints and writes its JSON
+        return 0
+    else:
+        raise SystemExit(f"wrenchd bench: unknown benchmark {kind!r}")
+    text = json.dumps(result, indent=2)
+    print(text)
+    if json_path:
+        Path(json_path).write_text(text + "\n")
+    return 0
+
+
+def bench_arm_thread(duration_s: float = 20.0) -> dict:
+    """Per-sample cost of the daemon's work for one arm, without zenoh: decode the JSON joint
+    state, run the pipeline (frozen: no adaptation rounds), encode the wrench, hand both log
+    records to the log writer (``log``); and, apart (``log_writer``), the log writer
+    process's work: format and write them to MCAP. Percentiles per stage [us], one ``trocar``
+    session at 200 Hz."""
+    import tempfile
+
+    import numpy as np
+
+    from collections import deque
+
+    from wrenchd.adapters.mcap_log import TOPIC_ESTIMATE, LogConfig, McapLog, format_record
+    from wrenchd.adapters.mcap_session import TOPIC_JOINT_STATES
+    from wrenchd.adapters.messages import decode_joint_state, encode_joint_state, encode_wrench
+    from wrenchd.adapters.sim.scenarios import run_scenario
+    from wrenchd.models.estimator.pretrained import load_pretrained
+    from wrenchd.service.runtime.daemon import estimate_payload
+    from wrenchd.service.pipeline.arm import ArmPipeline, PipelineConfig, PolicyConfig
+
+    js = run_scenario("trocar", duration_s, 1).joint_states
+    payloads = [encode_joint_state("json", int(round(js.t[i] * 1e9)), js.names, js.position[i],
+                                   js.velocity[i], js.effort[i]) for i in range(len(js))]
+    pipeline = ArmPipeline("PSM1", load_pretrained("seal"),
+                           PipelineConfig(policy=PolicyConfig(name="frozen")))
+    # the daemon's own work per sample (decode, pipeline, wrench encode, hand-over to the log
+    # writer); the log writer process's work (format, write) is timed apart: it runs elsewhere
+    stages: dict[str, list[float]] = {"decode": [], "pipeline": [], "encode": [], "log": []}
+    writer: list[float] = []
+    queue: deque = deque()
+    with tempfile.TemporaryDirectory() as tmp:
+        log = McapLog("PSM1", LogConfig(directory=tmp))
+        for payload in payloads:
+            t0 = time.perf_counter()
+            msg = decode_joint_state("json", payload)
+            t1 = time.perf_counter()
+            est, _ = pipeline.process(msg)
+            t2 = time.perf_counter()
+            encode_wrench("json", est.stamp_ns, est.wrench, "psm_base",
+                          {"free": est.free, "model_version": est.model_version})
+            t3 = time.perf_counter()
+            queue.append((0, TOPIC_JOINT_STATES, est.stamp_ns, payload))
+            queue.append((0, TOPIC_ESTIMATE, est.stamp_ns, estimate_payload(est)))
+            t4 = time.perf_counter()
+            while queue:
+                _, topic, stamp_ns, record = queue.popleft()
+                log.write(topic, stamp_ns, format_record(record))
+            log.tick()
+            writer.append((time.perf_counter() - t4) * 1e6)
+            for name, a, b in (("decode", t0, t1), ("pipeline", t1, t2), ("encode", t2, t3),
+                               ("log", t3, t4)):
+                stages[name].append((b - a) * 1e6)
+        log.close()
+    total = np.sum([stages[k] for k in stages], axis=0)
+    out = {f"{k}_p50_us": round(float(np.percentile(v, 50)), 1) for k, v in stages.items()}
+    out.update({f"{k}_p99_us": round(float(np.percentile(v, 99)), 1) for k, v in stages.items()})
+    out.update({"total_p50_us": round(float(np.percentile(total, 50)), 1),
+                "total_p99_us": round(float(np.percentile(total, 99)), 1),
+                "log_writer_p50_us": round(float(np.percentile(writer, 50)), 1),
+                "log_writer_p99_us": round(float(np.percentile(writer, 99)), 1),
+                "samples": len(payloads), "threads": 1})
+    return out

@@ -1,0 +1,1 @@
+"""The per-sample pipeline that the daemon and replay both drive."""

@@ -1,0 +1,732 @@
+"""One arm's per-sample pipeline: validate -> estimate -> wrench -> gate -> train offer.
+
+The daemon and replay drive the very same :class:`ArmPipeline`; neither publishing nor
+logging happens here (the caller does that with what :meth:`ArmPipeline.process` returns), and
+adaptation is behind a small :class:`AdaptationBackend` interface: inline in simulated time
+for replay (deterministic), a worker process for the daemon.
+
+Per sample:
+
+1. **validate**: decoded message, six joints, finite, magnitudes within ``ValidationConfig``
+   bounds, time strictly increasing. A bad sample becomes an ``error`` event and a counter;
+   it never reaches the estimator or the training data. A gap longer than the estimator's
+   ``max_gap_s`` restarts the LSTM state (``gap`` event).
+2. **estimate**: :class:`TwoStepEstimator.step_one` (step 1 + ``Corr`` + damped ``J^-T``).
+3. **gate**: :class:`FreeMotionGate` on the residual torque; the flag goes with the estimate.
+   The first ``calibration_s`` of a session are the contact-free calibration of step 2 that
+   the two-step paper assumes (the surgeon moves the instrument in the patient without
+   touching tissue): every sample is taken as free and trains the correction net eagerly;
+   at its end the gate re-learns its bounds on the calibrated residual (``calibrated`` event).
+   The contact-free assumption is checked, not trusted: a **calibration guard** (a second
+   :class:`FreeMotionGate` on the *step-1* residual, seeded with the step-1 model's known
+   free-motion residual scale, :class:`CalibrationGuardConfig`) judges every calibration
+   sample and counts those it calls contact; a calibration spent much in contact ends with a
+   ``calibration_contaminated`` event (re-calibrate). With ``action: refuse`` such samples,
+   and the delay line's samples from just before the contact's onset, do not train.
+4. **train offer** (the policy, :class:`PolicyConfig`): with the ``gated`` policy a free
+   sample waits ``release_delay_s`` in a delay line and reaches the adaptation only if no
+   contact began meanwhile (a contact's onset, still under the gate's bound, is dropped with
+   the rest of the line). ``ungated`` offers every sample at once, ``frozen`` none.
+5. **drift**: free samples feed :class:`ResidualDriftDetector`; a detection is an event and
+   makes the adaptation eager.
+6. **model swap**: accepted rounds from the backend replace the ``Corr`` between two samples.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any, Literal, Protocol
+
+import numpy as np
+import torch
+from pydantic import BaseModel, ConfigDict, Field
+
+from wrenchd.adapters.messages import JointStateMsg
+from wrenchd.models.drift_detector import DriftConfig, ResidualDriftDetector
+from wrenchd.models.errors import ConfigError, DataError
+from wrenchd.models.estimator.correction import Corr, CorrConfig
+from wrenchd.models.estimator.estimator import EstimatorConfig, TwoStepEstimator
+from wrenchd.models.estimator.free_space import FreeSpaceModel
+from wrenchd.models.gate import FreeMotionGate, GateConfig, GateDecision
+from wrenchd.models.series import N_JOINTS
+from wrenchd.models.adaptation.adapter import Adapter, AdaptationConfig, RoundResult, normalisation_of
+
+POLICIES = ("gated", "ungated", "frozen", "drift-triggered", "periodic-reset")
+
+
+class ValidationConfig(BaseModel):
+    """What a joint state must satisfy to be estimated."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    max_abs_position: tuple[float, ...] = Field(
+        default=(3.2, 3.2, 0.5, 5.0, 3.2, 3.2),
+        description="|q| bound per joint [rad; m on insertion]; beyond is refused")
+    max_abs_velocity: tuple[float, ...] = Field(
+        default=(10.0, 10.0, 2.0, 20.0, 20.0, 20.0), description="|dq| bound [rad/s; m/s]")
+    max_abs_effort: tuple[float, ...] = Field(
+        default=(50.0, 50.0, 200.0, 10.0, 10.0, 10.0), description="|effort| bound [N m; N]")
+    resync_after: int = Field(
+        default=40, ge=1,
+        description="this many consecutive samples stamped before the last accepted one mean "
+                    "the publisher's clock restarted (or one stamp came from the far future): "
+                    "accept the new timeline ('clock_reset' event) instead of refusing forever")
+    setup_ahead_s: float = Field(
+        default=5.0, ge=0.0,
+        description="a set-up change notice stamped further than this after the arm's latest "
+                    "sample is refused: its clock is not the robot's (a wall-clock stamp on a "
+                    "robot stamping from its start would keep adaptation eager for ever) [s]")
+
+
+class PolicyConfig(BaseModel):
+    """Which samples reach the adaptation, and when it may run."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    name: Literal["gated", "ungated", "frozen", "drift-triggered", "periodic-reset"] = "gated"
+    release_delay_s: float = Field(default=2.5, ge=0.0,
+                                   description="a free sample waits this long for a contact")
+    onset_margin_s: float = Field(
+        default=2.5, ge=0.0,
+        description="when a contact is found, the waiting samples from this long before the "
+                    "gate's onset on are dropped (the force builds up under the bound first: "
+                    "the gate finds some contacts 2.0-2.5 s after they start, measured on "
+                    "trocar-contact seeds 3-4); older ones go on waiting and are offered "
+                    "after the contact")
+    reset_every_s: float = Field(default=120.0, gt=0.0,
+                                 description="periodic-reset: back to the initial net [s]")
+
+
+class CalibrationGuardConfig(BaseModel):
+    """The check that the calibration is contact-free (see :class:`ArmPipeline`).
+
+    The step-1 residual (measured minus step-1 torque) does not change while the correction
+    net calibrates, and the step-1 model's validation RMSE says how large it is in free
+    motion; a contact adds ``J^T w`` on top. So a :class:`FreeMotionGate` on it, seeded with
+    ``scale_factor`` x that RMSE instead of a warm-up (a warm-up could itself be spent in
+    contact: ``trocar-contact`` seed 3 touches from 1.6 s to 4.9 s), can judge from the first
+    sample. It counts the samples it calls contact and warns (``action: warn``), or keeps
+    them out of training through the gated phase's delay line (``action: refuse``).
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    enabled: bool = Field(default=True, description="judge the calibration's samples")
+    action: Literal["warn", "refuse"] = Field(
+        default="warn",
+        description="warn: every calibration sample trains as before, the guard only counts "
+                    "and warns; refuse: what the guard calls contact does not train (no "
+                    "contact trained on trocar-contact, but a calibration 0.02-0.25 N worse on "
+                    "contact-free ones: see the README); refuse also publishes the guard's "
+                    "free flag during the calibration (warn: all free, as before)")
+    residual_scale: tuple[float, ...] | None = Field(
+        default=None,
+        description="free-motion RMS of the step-1 residual per joint [N m; N on insertion]; "
+                    "None: the step-1 checkpoint's validation RMSE (no guard when unknown)")
+    scale_factor: float = Field(
+        default=2.0, gt=0.0,
+        description="the guard starts from this x residual_scale (a set-up adds residual the "
+                    "step-1 validation did not have; measured on insufflation-change seeds "
+                    "3-6, contact-free: 1.0 called 67-85 % of the samples free, 2.0 80-96 %)")
+    borderline_trains: bool = Field(
+        default=True,
+        description="refuse: a sample the guard calls free but over the gate's train_sigma "
+                    "trains all the same (the calibration is there to learn the residual the "
+                    "step-1 model leaves, its largest parts included)")
+    warn_fraction: float = Field(
+        default=0.3, ge=0.0, le=1.0,
+        description="a calibration whose samples the guard called contact more than this "
+                    "fraction ends with a 'calibration_contaminated' event")
+
+
+class PipelineConfig(BaseModel):
+    """Everything one arm's pipeline needs besides its networks."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    estimator: EstimatorConfig = Field(default_factory=EstimatorConfig)
+    validation: ValidationConfig = Field(default_factory=ValidationConfig)
+    gate: GateConfig = Field(default_factory=GateConfig)
+    drift: DriftConfig = Field(default_factory=DriftConfig)
+    adaptation: AdaptationConfig = Field(default_factory=AdaptationConfig)
+    policy: PolicyConfig = Field(default_factory=PolicyConfig)
+    calibration_s: float = Field(default=60.0, ge=0.0,
+                                 description="contact-free calibration at the start [s]")
+    calibration_guard: CalibrationGuardConfig = Field(default_factory=CalibrationGuardConfig)
+
+
+@dataclass(frozen=True)
+class Event:
+    """Something worth telling subscribers and the log: ``kind`` and JSON-able ``detail``."""
+
+    t: float
+    kind: str       # error | gap | contact_start | contact_end | drift | model | round | ...
+    detail: dict[str, Any]
+
+    def to_json(self) -> dict[str, Any]:
+        return {"t": self.t, "kind": self.kind, **self.detail}
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """One sample's outputs (arrays (6,) as in :class:`EstimatorOutput`)."""
+
+    index: int
+    stamp_ns: int
+    t: float
+    position: np.ndarray
+    velocity: np.ndarray
+    effort: np.ndarray
+    wrench: np.ndarray
+    predicted_torque: np.ndarray
+    external_torque: np.ndarray
+    free: bool
+    score: float
+    model_version: int
+    restarted: bool
+
+    def __init__(self, index: int, stamp_ns: int, t: float, position: np.ndarray,
+                 velocity: np.ndarray, effort: np.ndarray, wrench: np.ndarray,
+                 predicted_torque: np.ndarray, external_torque: np.ndarray, free: bool,
+                 score: float, model_version: int, restarted: bool) -> None:
+        # One per sample: a dict update instead of the generated frozen __init__'s
+        # object.__setattr__ per field (2-3 us less a sample); immutable all the same.
+        self.__dict__.update(
+            index=index, stamp_ns=stamp_ns, t=t, position=position, velocity=velocity,
+            effort=effort, wrench=wrench, predicted_torque=predicted_torque,
+            external_torque=external_torque, free=free, score=score,
+            model_version=model_version, restarted=restarted)
+
+
+@dataclass
+class Counters:
+    received: int = 0
+    estimated: int = 0
+    errors: int = 0
+    gaps: int = 0
+    dropped: int = 0          # set by the daemon (ring buffer overflow)
+    offered: int = 0          # samples given to the adaptation
+    discarded_onsets: int = 0  # free-looking samples dropped because a contact began
+    calibration_samples: int = 0   # samples estimated during the calibration
+    calibration_contact: int = 0   # of those, the calibration guard called contact
+    drifts: int = 0
+    setup_changes: int = 0     # announced set-up changes taken
+    rounds: int = 0
+    swaps: int = 0
+    error_kinds: dict[str, int] = field(default_factory=dict)
+
+
+class AdaptationBackend(Protocol):
+    """Where offered samples go and accepted models come from."""
+
+    def offer(self, windows: np.ndarray, step1: np.ndarray, measured: np.ndarray,
+              t: np.ndarray | None = None) -> None: ...
+    def drift(self, t: float) -> None: ...
+    def setup_change(self, t: float) -> None: ...
+    def tick(self, t: float) -> list[RoundResult]: ...
+    def reset(self, t: float) -> None: ...
+    def close(self) -> None: ...
+
+
+class InlineAdaptation:
+    """The :class:`Adapter` run synchronously in the pipeline's (simulated) time: replay."""
+
+    def __init__(self, config: AdaptationConfig,
+                 normalisation: dict[str, np.ndarray] | None = None) -> None:
+        self.config, self.normalisation = config, normalisation
+        self.adapter = Adapter(config, normalisation=normalisation)
+
+    def offer(self, windows, step1, measured, t=None) -> None:
+        self.adapter.add(windows, step1, measured, t)
+
+    def drift(self, t: float) -> None:
+        self.adapter.on_drift(t)
+
+    def setup_change(self, t: float) -> None:
+        self.adapter.on_setup_change(t)
+
+    def tick(self, t: float) -> list[RoundResult]:
+        result = self.adapter.round(t)
+        return [] if result is None else [result]
+
+    def reset(self, t: float) -> None:
+        self.adapter = Adapter(self.config, normalisation=self.normalisation)
+
+    def close(self) -> None:
+        pass
+
+
+def initial_corr(config: AdaptationConfig) -> Corr:
+    """The pipeline's starting ``Corr``: identity normalisation, output exactly zero."""
+    corr = Corr(CorrConfig(window=config.window, hidden_size=config.hidden_size))
+    with torch.no_grad():
+        corr.net[-1].weight.zero_()
+        corr.net[-1].bias.zero_()
+    return corr.eval()
+
+
+class ArmPipeline:
+    """Validate, estimate, gate, offer to adaptation, swap models: one arm.
+
+    Args:
+        arm: name used in events.
+        free_space: the step-1 model (shipped weights or a checkpoint).
+        config: the pipeline's settings.
+        backend: adaptation backend; default inline (replay); None with policy ``frozen``.
+    """
+
+    def __init__(self, arm: str, free_space: FreeSpaceModel, config: PipelineConfig | None = None,
+                 backend: AdaptationBackend | None = None) -> None:
+        self.arm = arm
+        self.config = c = config if config is not None else PipelineConfig()
+        self.policy = c.policy.name
+        self.estimator = TwoStepEstimator(free_space, initial_corr(c.adaptation), c.estimator)
+        self.gate = FreeMotionGate(c.gate)
+        self.guard = self._calibration_guard(free_space)
+        self._guard_refuses = (self.guard is not None
+                               and c.calibration_guard.action == "refuse")
+        self.drift = ResidualDriftDetector(np.asarray(c.gate.min_std), c.drift)
+        adapt = c.adaptation.enabled and self.policy != "frozen"
+        self.backend = (backend if backend is not None else InlineAdaptation(
+            c.adaptation, normalisation_of(free_space))) if adapt else None
+        self.on_offer = None      # optional hook: called with the times [s] of offered samples
+        self.counters = Counters()
+        self.model_version = 0
+        self.model_validation: float | None = None
+        self._last_ns: int | None = None
+        self._behind = 0                      # consecutive samples stamped before the last
+        self._pending: deque[tuple[float, np.ndarray, np.ndarray, np.ndarray]] = deque()
+        self._times: deque[float] = deque(maxlen=8192)   # times of the last estimated samples
+        self._index = 0
+        self._lim = tuple(np.asarray(v, dtype=float) for v in (
+            c.validation.max_abs_position, c.validation.max_abs_velocity,
+            c.validation.max_abs_effort))
+        self._bounds = np.stack(self._lim)                      # (3, 6)
+        self._adapt_until = -np.inf           # drift-triggered: adapt only after a drift
+        self._next_reset: float | None = None
+        self._calibration_end: float | None = None
+        self._was_contact = False
+        self._last_setup: dict[str, Any] | None = None
+        self.body_wall: list[float | None] = []    # stiffness per segment, the last round's
+
+    def _calibration_guard(self, free_space: FreeSpaceModel) -> FreeMotionGate | None:
+        """The calibration's contact check, or None (off, no calibration, no known scale)."""
+        g = self.config.calibration_guard
+        scale = g.residual_scale
+        if scale is None:
+            scale = getattr(free_space, "validation_rmse", None)
+        if not g.enabled or scale is None or self.config.calibration_s <= 0:
+            return None
+        if len(scale) != N_JOINTS:
+            raise ConfigError(f"calibration_guard.residual_scale needs {N_JOINTS} values, "
+                              f"got {len(scale)}")
+        guard = FreeMotionGate(self.config.gate)
+        guard.seed(g.scale_factor * np.asarray(scale, dtype=float))
+        return guard
+
+    # -- validation ---------------------------------------------------------------------
+    def _error(self, t: float, kind: str, reason: str) -> Event:
+        self.counters.errors += 1
+        self.counters.error_kinds[kind] = self.counters.error_kinds.get(kind, 0) + 1
+        return Event(t, "error", {"arm": self.arm, "error": kind, "reason": reason})
+
+    def reject(self, t: float, kind: str, reason: str) -> Event:
+        """Count and describe an input refused before it reached the pipeline (decoding)."""
+        self.counters.received += 1
+        return self._error(t, kind, reason)
+
+    def _validate(self, msg: JointStateMsg) -> str | None:
+        lengths = (len(msg.position), len(msg.velocity), len(msg.effort))
+        if lengths != (N_JOINTS,) * 3:
+            return (f"position, velocity, effort have {lengths[0]}, {lengths[1]}, {lengths[2]} "
+                    f"values; the PSM pipeline needs {N_JOINTS} each")
+        values = (msg.position, msg.velocity, msg.effort)
+        # One comparison for the common case (NaN compares False, so it fails too); the
+        # reason is worked out only for a bad sample.
+        if (np.abs(values) <= self._bounds).all():
+            return None
+        for name, v, lim in zip(("position", "velocity", "effort"), values, self._lim):
+            if not np.isfinite(v).all():
+                return f"{name} contains NaN or Inf"
+            bad = np.abs(v) > lim
+            if bad.any():
+                j = int(np.argmax(bad))
+                return f"{name}[{j + 1}] = {v[j]:.6g} is beyond the bound {lim[j]:g}"
+        return "joint state out of bounds"                     # not reached
+
+    # -- per sample ---------------------------------------------------------------------
+    def process(self, msg: JointStateMsg, checked: bool = False
+                ) -> tuple[Estimate | None, list[Event]]:
+        """Run one decoded joint state through the pipeline.
+
+        ``checked``: the caller has already found ``msg`` within ``config.validation`` (six
+        finite values each, within the bounds; replay checks a whole session at once), so
+        the per-sample check is skipped; everything else (stamp order, gaps) is as usual.
+        """
+        admitted = self._admit(msg, checked)
+        if isinstance(admitted, list):
+            return None, admitted
+        return self._finish_one(msg, *admitted)
+
+    #: the smallest backlog :meth:`process_many` estimates in one pass (below, one by one)
+    BATCH_MIN = 6
+
+    def process_many(self, msgs: list[JointStateMsg]
+                     ) -> list[tuple[Estimate | None, list[Event]]]:
+        """Consecutive joint states of this arm, as :meth:`process` would handle them one by
+        one, with two differences: the estimator works a backlog off in one pass (the
+        one-arm case of :meth:`process_many_joint`: equal up to float32 rounding), and the
+        adaptation is looked at once, after the last sample (a model that became ready
+        meanwhile serves from the next call on, as if it had come a few samples later).
+        """
+        if len(msgs) < self.BATCH_MIN:
+            return [self.process(m) for m in msgs]
+        return ArmPipeline.process_many_joint([self], [msgs])[0]
+
+    @staticmethod
+    def process_many_joint(pipelines: list[ArmPipeline], msgs: list[list[JointStateMsg]]
+                           ) -> list[list[tuple[Estimate | None, list[Event]]]]:
+        """Queued joint states of several arms whose estimators share their step-1 kernel
+        (arms of one daemon, one model): what each arm's :meth:`process_many` returns, the
+        recurrences of all arms stepped as one batch
+        (:meth:`TwoStepEstimator.step_many_joint`, equal to float32 rounding)."""
+        admitted = [p._admit_all(arm_msgs) for p, arm_msgs in zip(pipelines, msgs)]
+        try:
+            outs = TwoStepEstimator.step_many_joint(
+                [p.estimator for p in pipelines],
+                [(np.array([a[2] for a in adm]),
+                  np.array([a[1].position for a in adm]).reshape(-1, N_JOINTS),
+                  np.array([a[1].velocity for a in adm]).reshape(-1, N_JOINTS),
+                  np.array([a[1].effort for a in adm]).reshape(-1, N_JOINTS))
+                 for _, adm in admitted])
+        except DataError as exc:                    # cannot happen after validation; be safe
+            for p, (res, adm) in zip(pipelines, admitted):
+                for k, _, t, events, _ in adm:
+                    res[k] = (None, events + [p._error(t, "invalid", str(exc))])
+            return [res for res, _ in admitted]
+        for p, (res, adm), arm_outs in zip(pipelines, admitted, outs):
+            for (k, msg, t, events, gap_s), out in zip(adm, arm_outs):
+                res[k] = p._after(msg, t, out, events, gap_s)
+            if adm:
+                res[adm[-1][0]][1].extend(p._adapt(adm[-1][2]))
+        return [res for res, _ in admitted]
+
+    def _admit_all(self, msgs: list[JointStateMsg]) -> tuple[list, list]:
+        """:meth:`_admit` in order: the results so far (refusals filled in, a placeholder for
+        each admitted sample) and ``(position in results, msg, t, events, gap_s)`` of those
+        to estimate."""
+        results: list[tuple[Estimate | None, list[Event]]] = []
+        admitted: list[tuple] = []
+        for msg in msgs:
+            a = self._admit(msg)
+            if isinstance(a, list):
+                results.append((None, a))
+            else:
+                admitted.append((len(results), msg, *a))
+                results.append((None, []))
+        return results, admitted
+
+    def _finish_one(self, msg: JointStateMsg, t: float, events: list[Event],
+                    gap_s: float | None) -> tuple[Estimate | None, list[Event]]:
+        try:
+            out = self.estimator.step_one(t, msg.position, msg.velocity, msg.effort)
+        except DataError as exc:                    # cannot happen after validation; be safe
+            return None, events + [self._error(t, "invalid", str(exc))]
+        est, events = self._after(msg, t, out, events, gap_s)
+        events.extend(self._adapt(t))
+        return est, events
+
+    def _admit(self, msg: JointStateMsg, checked: bool = False
+               ) -> tuple[float, list[Event], float | None] | list[Event]:
+        """Validation (unless ``checked``) and stamp order: ``(t, events, gap_s)`` of a sample
+        to estimate (``gap_s`` the time since the last one when it is a gap, else None), or the
+        refusal's events."""
+        self.counters.received += 1
+        t = msg.stamp_ns / 1e9
+        events: list[Event] = []
+        if not checked:
+            reason = self._validate(msg)
+            if reason is not None:
+                return [self._error(t, "invalid", reason)]
+        last = self._last_ns
+        if last is not None and msg.stamp_ns <= last:
+            kind = "duplicate" if msg.stamp_ns == last else "time_backwards"
+            self._behind += 1
+            event = self._error(t, kind, f"stamp {msg.stamp_ns} ns after {last} ns")
+            if self._behind < self.config.validation.resync_after:
+                return [event]
+            events += [event, Event(t, "clock_reset", {          # a new timeline: accept it
+                "arm": self.arm, "last_ns": last, "now_ns": msg.stamp_ns})]
+            last = None
+        gap_s = None
+        if last is not None and msg.stamp_ns - last > self.config.estimator.max_gap_s * 1e9:
+            gap_s = (msg.stamp_ns - last) / 1e9
+        self._behind = 0
+        self._last_ns = msg.stamp_ns
+        return t, events, gap_s
+
+    def _after(self, msg: JointStateMsg, t: float, out, events: list[Event],
+               gap_s: float | None) -> tuple[Estimate | None, list[Event]]:
+        """Everything after the estimator for one sample: gate, drift, offer (not adaptation)."""
+        if events and events[-1].kind == "clock_reset":
+            self._pending.clear()
+        if gap_s is not None:
+            self.counters.gaps += 1
+            self._pending.clear()                      # the delay line spans no gap
+            events.append(Event(t, "gap", {"arm": self.arm, "gap_s": gap_s}))
+        # a non-finite value makes the sum non-finite; a finite sum can only overflow (then
+        # the exact check decides): six Python floats add faster than NumPy checks six values
+        if not math.isfinite(sum(out.wrench.tolist())) and not np.isfinite(out.wrench).all():
+            return None, events + [self._error(t, "non_finite_output", "estimate not finite")]
+        index = self._index
+        self._index += 1
+        self._times.append(t)
+        self.counters.estimated += 1
+        decision = self.gate.update(index, t, out.external_torque)
+        calibrating = self._calibrating(t, events)
+        if calibrating:
+            decision = self._calibration_decision(index, t, out, msg.effort, decision.score)
+        if decision.recalibrated:
+            events.append(Event(t, "gate_recalibrated", {"arm": self.arm,
+                                                         "max_contact_s":
+                                                         self.config.gate.max_contact_s}))
+        self._contact_events(t, events)
+        if decision.free and not calibrating and self.drift.update(t, out.external_torque):
+            self.counters.drifts += 1
+            self._adapt_until = t + self.config.adaptation.eager_s
+            events.append(Event(t, "drift", {"arm": self.arm,
+                                             "level": self.drift.level(out.external_torque)}))
+            if self.backend is not None:
+                self.backend.drift(t)
+        self._offer(t, out, msg.effort, decision.free, events, calibrating, decision.trainable,
+                    decision.contact_started)
+        est = Estimate(index, msg.stamp_ns, t, msg.position, msg.velocity, msg.effort,
+                       out.wrench, out.predicted_torque, out.external_torque, decision.free,
+                       decision.score, self.model_version, out.restarted)
+        return est, events
+
+    def _calibration_decision(self, index: int, t: float, out, effort: np.ndarray,
+                              score: float) -> GateDecision:
+        """A calibration sample's verdict: the guard's on the step-1 residual (free unless
+        there is no guard); ``score`` stays the main gate's."""
+        self.counters.calibration_samples += 1
+        if self.guard is None:
+            return GateDecision(True, score, -1, trainable=True)
+        g = self.guard.update(index, t, effort - out.step1_torque)
+        if not g.free:
+            self.counters.calibration_contact += 1
+        if not self._guard_refuses:
+            return GateDecision(True, score, -1, trainable=True)
+        trainable = g.free if self.config.calibration_guard.borderline_trains else g.trainable
+        return GateDecision(g.free, score, g.contact_started, trainable=trainable)
+
+    def _calibrating(self, t: float, events: list[Event]) -> bool:
+        if self._calibration_end is None:
+            self._calibration_end = t + self.config.calibration_s
+            if self.config.calibration_s > 0:
+                if self.backend is not None:
+                    self.backend.drift(t)               # eager from the start
+                events.append(Event(t, "calibrating", {"arm": self.arm,
+                                                       "until": self._calibration_end}))
+        if not math.isfinite(self._calibration_end):      # a float: math is cheaper
+            return False
+        if t < self._calibration_end:
+            return True
+        self._calibration_end = np.inf
+        if self.config.calibration_s > 0:
+            self.gate.reset()                           # re-learn on the calibrated residual
+            c = self.counters
+            events.append(Event(t, "calibrated", {"arm": self.arm,
+                                                  "model_version": self.model_version,
+                                                  "samples": c.calibration_samples,
+                                                  "contact": c.calibration_contact}))
+            if self.calibration_contaminated:
+                events.append(Event(t, "calibration_contaminated", {
+                    "arm": self.arm, "samples": c.calibration_samples,
+                    "contact": c.calibration_contact,
+                    "fraction": c.calibration_contact / max(c.calibration_samples, 1)}))
+        return False
+
+    @property
+    def calibration_contaminated(self) -> bool:
+        """The guard called more than ``warn_fraction`` of the calibration's samples contact
+        (so far, while calibrating): re-calibrate when it is over."""
+        c = self.counters
+        return (c.calibration_samples > 0 and c.calibration_contact
+                > self.config.calibration_guard.warn_fraction * c.calibration_samples)
+
+    @property
+    def calibrating(self) -> bool:
+        return self._calibration_end is None or bool(np.isfinite(self._calibration_end))
+
+    def _contact_events(self, t: float, events: list[Event]) -> None:
+        was = self._was_contact
+        now = self.gate.in_contact
+        if now and not was:
+            events.append(Event(t, "contact_start", {"arm": self.arm}))
+        elif was and not now:
+            events.append(Event(t, "contact_end", {"arm": self.arm}))
+        self._was_contact = now
+
+    def _offer(self, t: float, out, effort: np.ndarray, free: bool, events: list[Event],
+               calibrating: bool = False, trainable: bool = True,
+               contact_started: int = -1) -> None:
+        if self.backend is None or out.window is None:
+            return
+        if self.policy == "drift-triggered" and t > self._adapt_until and not calibrating:
+            return
+        if self.policy == "ungated" or (calibrating and not self._guard_refuses):
+            self.counters.offered += 1
+            stamps = np.array([t])
+            self.backend.offer(out.window[None], out.step1_torque[None], effort[None], stamps)
+            if self.on_offer is not None:
+                self.on_offer(stamps)
+            return
+        if not free:
+            self._drop_onset(contact_started)
+            return
+        if trainable:                   # a free but borderline sample is skipped, not trusted
+            self._pending.append((t, out.window, out.step1_torque, effort.copy()))
+        delay = self.config.policy.release_delay_s
+        ready = []
+        while self._pending and t - self._pending[0][0] >= delay:
+            ready.append(self._pending.popleft())
+        if len(ready) == 1:                  # the usual case: one in, one out; no copies
+            t_ready, window, step1, measured = ready[0]
+            self.counters.offered += 1
+            stamps = np.array([t_ready])
+            self.backend.offer(window[None], step1[None], measured[None], stamps)
+            if self.on_offer is not None:
+                self.on_offer(stamps)
+        elif ready:
+            self.counters.offered += len(ready)
+            stamps = np.array([r[0] for r in ready])
+            self.backend.offer(np.stack([r[1] for r in ready]), np.stack([r[2] for r in ready]),
+                               np.stack([r[3] for r in ready]), stamps)
+            if self.on_offer is not None:
+                self.on_offer(stamps)
+
+    def _drop_onset(self, contact_started: int) -> None:
+        """Drop the waiting samples that may belong to the contact the gate is in: from
+        ``onset_margin_s`` before its onset on (all of them when the onset is unknown)."""
+        pending = self._pending
+        if not pending:
+            return
+        first = self._index - len(self._times)            # index of the oldest time kept
+        if contact_started < first:
+            cutoff = -np.inf
+        else:
+            cutoff = self._times[contact_started - first] - self.config.policy.onset_margin_s
+        n = len(pending)
+        while pending and pending[-1][0] >= cutoff:
+            pending.pop()
+        self.counters.discarded_onsets += n - len(pending)
+
+    def _adapt(self, t: float) -> list[Event]:
+        if self.backend is None:
+            return []
+        events = []
+        if self.policy == "periodic-reset":
+            if self._next_reset is None:
+                self._next_reset = t + self.config.policy.reset_every_s
+            elif t >= self._next_reset:
+                self._next_reset = t + self.config.policy.reset_every_s
+                self.backend.reset(t)
+                self.estimator.swap_correction(initial_corr(self.config.adaptation))
+                self.model_version += 1
+                events.append(Event(t, "model", {"arm": self.arm, "version": self.model_version,
+                                                 "reset": True}))
+        for result in self.backend.tick(t):
+            events.extend(self.apply(result))
+        errors = getattr(self.backend, "errors", None)
+        while errors:
+            events.append(Event(t, "adaptation_error", {"arm": self.arm, "error": errors.pop(0),
+                                                        "serving_version": self.model_version}))
+        return events
+
+    def refuse_setup(self, t: float, reason: str) -> Event:
+        """Count and describe a set-up change notice that could not be read."""
+        return self._error(t, "setup", reason)
+
+    def setup_change(self, t: float | None = None, detail: dict[str, Any] | None = None
+                     ) -> list[Event]:
+        """An announced set-up change (the insufflator's pressure set differently, a port
+        moved) at sample time ``t`` [s] (None: the last estimated sample's): adaptation gets
+        eager as after a drift, and the adapter carries its buffer over to the new set-up
+        (:meth:`wrenchd.models.adaptation.adapter.Adapter.on_setup_change`). ``detail`` (JSON values) goes
+        into the ``setup_change`` event. A time that is not finite, or more than
+        ``validation.setup_ahead_s`` after the latest sample, is refused with an error
+        event."""
+        detail = dict(detail or {})
+        last = self._times[-1] if self._times else None
+        if t is None:
+            if last is None:
+                return [self.refuse_setup(0.0, "a set-up change before the first sample "
+                                               "needs its time")]
+            t = last
+        if not math.isfinite(t):
+            return [self.refuse_setup(last if last is not None else 0.0,
+                                      f"set-up change time {t!r} is not finite")]
+        ahead = self.config.validation.setup_ahead_s
+        if last is not None and t > last + ahead:
+            return [self.refuse_setup(last, f"set-up change stamped {t:.3f} s, more than "
+                                            f"{ahead:g} s after the arm's latest sample "
+                                            f"({last:.3f} s): not the robot's clock?")]
+        self.counters.setup_changes += 1
+        self._adapt_until = t + self.config.adaptation.eager_s
+        if self.backend is not None:
+            self.backend.setup_change(t)
+        self._last_setup = {"t": t, **detail}
+        return [Event(t, "setup_change", {"arm": self.arm, **detail,
+                                          "carry_over": self.backend is not None
+                                          and self.config.adaptation.body_wall.enabled})]
+
+    def apply(self, result: RoundResult) -> list[Event]:
+        """Apply one round's outcome (swap the ``Corr`` if accepted); its events."""
+        self.counters.rounds += 1
+        self.body_wall = list(result.body_wall)
+        events = [Event(result.t, "round", {"arm": self.arm, **{
+            k: v for k, v in result.summary().items() if k != "t"}})]
+        if result.accepted and result.state_dict is not None:
+            # a reference swap: the worker sent the kernel ready to serve
+            self.estimator.swap_correction_state(result.state_dict, result.kernel)
+            self.counters.swaps += 1
+            self.model_version = result.version
+            self.model_validation = result.val_after
+            events.append(Event(result.t, "model", {
+                "arm": self.arm, "version": result.version, "val_before": result.val_before,
+                "val_after": result.val_after}))
+        return events
+
+    def status(self) -> dict[str, Any]:
+        """JSON-able state: counters, gate, drift, model."""
+        mean, std = self.gate.bounds()
+        c = self.counters
+        return {
+            "arm": self.arm, "policy": self.policy, "calibrating": self.calibrating,
+            "model": {"version": self.model_version, "validation": self.model_validation,
+                      "mode": self.estimator.mode},
+            "counters": {"received": c.received, "estimated": c.estimated, "errors": c.errors,
+                         "error_kinds": dict(c.error_kinds), "gaps": c.gaps,
+                         "dropped": c.dropped, "offered": c.offered,
+                         "discarded_onsets": c.discarded_onsets, "drifts": c.drifts,
+                         "setup_changes": c.setup_changes,
+                         "rounds": c.rounds, "swaps": c.swaps,
+                         "calibration_samples": c.calibration_samples,
+                         "calibration_contact": c.calibration_contact},
+            "calibration": {"guard": self.guard is not None,
+                            "contaminated": self.calibration_contaminated},
+            "gate": {"in_contact": self.gate.in_contact, "calibrated": self.gate.calibrated,
+                     "contacts": self.gate.contacts, "mean": mean.tolist(),
+                     "std": std.tolist()},
+            "drift": {"detections": self.drift.detections,
+                      "last_t": self.drift.last_detection_t},
+            "setup": self._last_setup,
+            "body_wall": {"stiffness_n_per_m": self.body_wall},
+        }
+
+    def close(self) -> None:
+        if self.backend is not None:
+            self.backend.close()

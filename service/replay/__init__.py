@@ -1,0 +1,1 @@
+"""Replay of recorded sessions through the daemon's pipeline: source, loop, output, metrics."""

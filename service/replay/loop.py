@@ -1,0 +1,434 @@
+"""Replay a session through the daemon's pipeline in simulated time, fast and deterministic.
+
+The samples go through :meth:`wrenchd.service.pipeline.arm.ArmPipeline.process`, the very method the
+daemon calls (validation, gate, drift, policy, delay line, adaptation, model swaps), in
+simulated time; the session's bounds are checked in one vectorised pass first, and
+``process`` skips its per-sample bounds check for the samples within them
+(``checked=True``; the others it refuses as usual). The adaptation runs in a forked worker by default
+(:class:`~wrenchd.service.replay.worker.WorkerAdaptation`: a round's net serves ``result_delay_s``
+of sample time after the round fell due, as in the daemon) or inline
+(:class:`~wrenchd.service.pipeline.arm.InlineAdaptation`: a round runs at the sample at which it falls
+due and its model is used from the next sample on); either way the outcome depends only on
+the session, the config, the seed and the delay.
+
+Fast path (``batched=True``, the default): step 1 of the estimator (the LSTMs) never adapts,
+so :class:`BatchedEstimator` computes it for every gap-free segment ahead of the pipeline,
+with torch on a thread (in chunks carrying the LSTM states, bit for bit one
+:meth:`FreeSpaceModel.predict_sequence` call; torch releases the GIL, so it overlaps the
+pipeline), and the ``Corr`` correction and the damped ``J^-T`` wrench map in blocks of
+samples, recomputed from the next sample on whenever the pipeline swaps the correction net
+(the wrench gains are computed in chunks when needed or while the pipeline waits for the
+adaptation worker). It stands in for the pipeline's estimator and returns the
+same :class:`EstimatorOutput` per sample; the rest of ``process`` is untouched. Its step-1
+numbers come by default from torch's float32 LSTM instead of the NumPy float32 kernel of the
+streaming path: they agree to float32 rounding (about 1e-6 relative); ``step1="kernel"``
+gives the streaming path's numbers bit for bit (a parity test checks it).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable, Sequence
+
+import numpy as np
+import torch
+
+from wrenchd.models.errors import ConfigError
+from wrenchd.models.estimator.estimator import EstimatorOutput, TwoStepEstimator
+from wrenchd.models.estimator.features import segment_starts
+from wrenchd.models.estimator.free_space import FreeSpaceModel
+from wrenchd.models.estimator.wrench import damped_wrench
+from wrenchd.models.series import N_JOINTS, Session
+from wrenchd.models.adaptation.adapter import normalisation_of
+from wrenchd.service.pipeline.arm import ArmPipeline, Event, PipelineConfig
+from wrenchd.service.replay.source import joint_state_messages
+from wrenchd.service.replay.worker import WorkerAdaptation
+
+
+#: Rows per torch step-1 call, in order (the last repeats): small first, so the replay can
+#: start while the rest is computed.
+STEP1_CHUNKS = (256, 512, 1024, 2048)
+#: The thread computes at most this many rows ahead of the replay, so that it shares the
+#: second core with the adaptation worker over the whole replay instead of competing with
+#: it at the start (the rows do not depend on when they are computed).
+STEP1_LEAD = 4096
+#: Samples per chunk of wrench gains (pinocchio Jacobians, ~2 ms).
+GAIN_CHUNK = 256
+
+
+class BatchedEstimator(TwoStepEstimator):
+    """The pipeline's estimator with step 1 precomputed for a known sequence of samples.
+
+    Args:
+        base: the pipeline's estimator (its step-1 model, correction, config, wrench map).
+        t: (N,) times [s] of the samples that will reach :meth:`step_one`, in order.
+        features: (N, 12) ``[q, dq]`` of those samples.
+        effort: (N, 6) their measured efforts [N m; N].
+        block: samples per ``Corr`` + wrench block.
+        step1: ``"kernel"``: step 1 by the streaming NumPy kernel, sample by sample, bit
+            for bit what :meth:`step_one` computes (adaptation is chaotic in float32
+            rounding: Adam turns 1e-7 differences of its inputs into different nets);
+            ``"torch"``: one torch LSTM call per segment, several times faster, equal to
+            float32 rounding only.
+    """
+
+    def __init__(self, base: TwoStepEstimator, t: np.ndarray, features: np.ndarray,
+                 effort: np.ndarray, block: int = 256, step1: str = "kernel") -> None:
+        super().__init__(base.free_space, base.correction, base.config, base.wrench_map)
+        if self.mode != "corr":
+            raise ConfigError("the batched replay needs a Corr estimator")
+        self.t = np.asarray(t, dtype=np.float64)
+        self.features = np.asarray(features, dtype=np.float64)
+        self.effort = np.asarray(effort, dtype=np.float64)
+        self.block = int(block)
+        n = len(self.t)
+        starts = segment_starts(self.t, self.config.max_gap_s)
+        self.restarted = np.zeros(n, dtype=bool)
+        self.restarted[starts] = True
+        self._n = n                                      # per-sample look-ups as Python lists
+        self._t_list = self.t.tolist()
+        self._restarted_list = self.restarted.tolist()
+        self.segment_start = starts[np.searchsorted(starts, np.arange(n), side="right") - 1] \
+            if n else np.zeros(0, dtype=np.int64)
+        # (N, 6) step-1 torques, float32 like the streaming kernel's output
+        self.step1 = np.zeros((n, N_JOINTS), dtype=np.float32)
+        self._segments = list(zip(starts.tolist(), np.append(starts[1:], n).tolist()))
+        self._ready = 0                         # step-1 rows computed so far
+        self.cursor = 0                         # index of the next sample step_one expects
+        self._thread: threading.Thread | None = None
+        self._stop = False
+        self._failure: BaseException | None = None
+        self._progress = threading.Condition()
+        if step1 == "torch" and not self.free_space.training:
+            # torch's LSTM releases the GIL: computed on a thread while the replay runs
+            self._thread = threading.Thread(target=self._torch_step1, daemon=True,
+                                            name="wrenchd-replay-step1")
+            self._thread.start()
+        elif step1 == "torch":
+            for a, b in self._segments:
+                self.step1[a:b] = self.free_space.predict_sequence(self.features[a:b])
+            self._ready = n
+        else:
+            for a, b in self._segments:   # the streaming kernel, the same calls as step_one
+                kernel, state = self._recurrent, self._recurrent.initial_state(1)
+                for k in range(a, b):
+                    y, state = kernel.step(self.features[k][None, :], state)
+                    self.step1[k] = y[0]
+            self._ready = n
+        # (N, 6, 6) wrench gains, computed in chunks when first needed or while the replay
+        # waits for the adaptation worker (idle_work)
+        self.gain = np.zeros((n, N_JOINTS, N_JOINTS))
+        self._gain_ready = 0
+        self._b0 = self._b1 = 0
+        self._blk: tuple[np.ndarray, ...] = ()
+
+    def _torch_step1(self) -> None:
+        """Step 1 by torch, segment by segment, each in chunks of :data:`STEP1_CHUNKS` rows
+        carrying the LSTM states: bit for bit :meth:`FreeSpaceModel.predict_sequence` of the
+        whole segment (tested). Publishes progress in ``_ready``."""
+        fs = self.free_space
+        try:
+            with torch.inference_mode():
+                for a, b in self._segments:
+                    states, k, sizes = None, a, iter(STEP1_CHUNKS)
+                    while k < b and not self._stop:
+                        if k - self.cursor > STEP1_LEAD:
+                            # woken by the next block (no polling: a poll takes the GIL
+                            # from the pipeline); the timeout only guards against a miss
+                            with self._progress:
+                                if k - self.cursor > STEP1_LEAD and not self._stop:
+                                    self._progress.wait(0.05)
+                            continue
+                        stop = min(b, k + next(sizes, STEP1_CHUNKS[-1]))
+                        x = torch.as_tensor(self.features[k:stop], dtype=fs.in_mean.dtype)
+                        ys, states = fs.forward_normalised(x[None], states)
+                        y = torch.cat(ys, dim=-1) * fs.out_std + fs.out_mean
+                        self.step1[k:stop] = y[0].to(torch.float64).numpy()
+                        k = stop
+                        with self._progress:
+                            self._ready = k
+                            self._progress.notify_all()
+        except BaseException as exc:  # noqa: BLE001 - raised on the replay's thread
+            with self._progress:
+                self._failure = exc
+                self._progress.notify_all()
+
+    def _wait_step1(self, stop: int) -> None:
+        """Block until step-1 rows up to ``stop`` are computed."""
+        with self._progress:
+            while self._ready < stop and self._failure is None:
+                self._progress.wait()
+        if self._failure is not None:
+            raise RuntimeError("batched replay: step 1 failed") from self._failure
+
+    def close(self) -> None:
+        """Stop and join the step-1 thread (before anything forks again)."""
+        self._stop = True
+        with self._progress:
+            self._progress.notify_all()
+        if self._thread is not None:
+            self._thread.join()
+            self._thread = None
+
+    def idle_work(self) -> bool:
+        """Compute the next chunk of wrench gains ahead of need; False when all are done
+        (the replay calls it while it waits for the adaptation worker)."""
+        if self._gain_ready >= self._n:
+            return False
+        self._gains_upto(self._gain_ready + 1)
+        return True
+
+    def _gains_upto(self, stop: int) -> None:
+        while self._gain_ready < stop:
+            a = self._gain_ready
+            b = min(self._n, a + GAIN_CHUNK)
+            self.gain[a:b] = self._wrench_gains(self.features[a:b, :N_JOINTS])
+            self._gain_ready = b
+
+    def _wrench_gains(self, q: np.ndarray) -> np.ndarray:
+        """Per sample of ``q`` (M, 6), the linear map external torque -> wrench of the
+        damped ``J^-T`` (each sample's on its own: the same in any chunks)."""
+        if len(q) == 0:
+            return np.zeros((0, N_JOINTS, N_JOINTS))
+        jac = self.wrench_map.kinematics.jacobian(q, frame="hybrid")         # (N, 6, 6)
+        cfg = self.wrench_map.config
+        # As WrenchMap.wrench: where ||J^-1||_F <= 1 / threshold (so s_min >= threshold) the
+        # map is J^-T exactly; elsewhere the damped one, whose columns are the wrenches of unit
+        # torques (the map is linear in the torque).
+        gains = np.empty_like(jac)
+        plain = np.zeros(len(q), dtype=bool)
+        ok = np.abs(np.linalg.det(jac)) > 0.0
+        if ok.any():
+            inv = np.linalg.inv(jac[ok])
+            gains[ok] = inv.transpose(0, 2, 1)
+            plain[ok] = np.einsum("nij,nij->n", inv, inv) <= 1.0 / cfg.threshold ** 2
+        damped = ~plain
+        if damped.any():
+            unit = damped_wrench(jac[damped][:, None], np.eye(N_JOINTS), cfg.threshold,
+                                 cfg.max_damping)
+            gains[damped] = unit.transpose(0, 2, 1)
+        return np.ascontiguousarray(gains)
+
+    def _compute_block(self, i: int) -> None:
+        w = self.correction.window
+        b1 = min(i + self.block, len(self.t))
+        if self._ready < b1:
+            self._wait_step1(b1)
+        elif self._thread is not None and self._ready < self._n:
+            with self._progress:              # the step-1 thread may wait for the cursor
+                self._progress.notify_all()
+        if self._gain_ready < b1:
+            self._gains_upto(b1)
+        rows = np.arange(i, b1)
+        idx = rows[:, None] - (w - 1) + np.arange(w)[None, :]
+        idx = np.maximum(idx, self.segment_start[rows][:, None])
+        windows = self.features[idx]                                        # (B, W, 12)
+        predicted = self._corr.correct(windows, self.step1[i:b1]).astype(np.float64)
+        external = self.effort[i:b1] - predicted
+        wrench = np.einsum("nij,nj->ni", self.gain[i:b1], external)
+        self._b0, self._b1 = i, b1
+        self._blk = (windows, predicted, external, wrench, self.step1[i:b1].astype(np.float64))
+
+    def step_one(self, t, q, dq, tau_measured) -> EstimatorOutput:
+        i = self.cursor
+        if i >= self._n or self._t_list[i] != t:
+            raise ConfigError(f"batched replay: sample at t={t} s is not the next precomputed "
+                              f"one; the pipeline accepted samples the pre-pass did not expect")
+        self.cursor = i + 1
+        if not self._b0 <= i < self._b1:
+            self._compute_block(i)
+        k = i - self._b0
+        windows, predicted, external, wrench, step1 = self._blk
+        return EstimatorOutput(float(t), predicted[k], external[k], wrench[k],
+                               self._restarted_list[i], step1[k], windows[k])
+
+    def swap_correction(self, correction) -> None:
+        super().swap_correction(correction)
+        self._b1 = min(self._b1, self.cursor)          # recompute from the next sample on
+
+    def swap_correction_state(self, state, kernel=None) -> None:
+        super().swap_correction_state(state, kernel)
+        self._b1 = min(self._b1, self.cursor)
+
+
+@dataclass
+class ReplayResult:
+    """Per-sample outputs (rows of the samples the pipeline estimated) and what happened.
+
+    Arrays: ``t`` (N,) [s], ``stamp_ns`` (N,), ``wrench`` (N, 6) [N, N m], ``external``
+    and ``predicted`` (N, 6) [N m; N], ``free`` (N,), ``score`` (N,) [std], ``model_version``
+    (N,), ``sample`` (N,) index of each row in the session.
+    """
+
+    t: np.ndarray
+    stamp_ns: np.ndarray
+    sample: np.ndarray
+    wrench: np.ndarray
+    external: np.ndarray
+    predicted: np.ndarray
+    free: np.ndarray
+    score: np.ndarray
+    model_version: np.ndarray
+    events: list[Event]
+    offered_t: np.ndarray
+    status: dict[str, Any]
+    config: dict[str, Any]
+    policy: str
+    wall_s: float
+    samples_in: int
+    meta: dict[str, Any] = field(default_factory=dict)
+
+
+def _valid(pipeline: ArmPipeline, js) -> np.ndarray:
+    """(N,) bool: the samples within the bounds of the pipeline's validation
+    (``pipeline.config.validation``; six finite values each), vectorised."""
+    v = pipeline.config.validation
+    ok = np.ones(len(js), dtype=bool)
+    for values, lim in ((js.position, v.max_abs_position), (js.velocity, v.max_abs_velocity),
+                        (js.effort, v.max_abs_effort)):
+        if values.ndim != 2 or values.shape[1] != N_JOINTS:
+            return np.zeros(len(js), dtype=bool)       # process() refuses and says why
+        ok &= np.all(np.isfinite(values) & (np.abs(values) <= np.asarray(lim)), axis=1)
+    return ok
+
+
+def _accepted(pipeline: ArmPipeline, js, valid: np.ndarray | None = None) -> np.ndarray:
+    """Indices of the samples the pipeline will estimate: within the bounds of its validation
+    (``valid``, see :func:`_valid`) and strictly increasing stamps, vectorised."""
+    keep = np.flatnonzero(_valid(pipeline, js) if valid is None else valid)
+    stamps = np.rint(js.t[keep] * 1e9).astype(np.int64)
+    # JointStates are strictly increasing, so only equal rounded stamps can be refused
+    dup = np.r_[False, np.diff(stamps) <= 0]
+    return keep[~dup]
+
+
+def replay(session: Session, free_space: FreeSpaceModel, config: PipelineConfig | None = None,
+           *, policy: str = "", batched: bool = True, arm: str = "PSM1", block: int = 256,
+           step1: str = "torch", adaptation: str = "worker", result_delay_s: float = 1.0,
+           pipeline_hook: Callable[[ArmPipeline], None] | None = None,
+           setup_changes: Sequence[tuple[float, dict[str, Any]]] = ()) -> ReplayResult:
+    """Run ``session`` through a fresh :class:`ArmPipeline` in simulated time.
+
+    Args:
+        session: joint states (truth is not used here; see :mod:`wrenchd.service.replay.metrics`).
+        free_space: the step-1 model.
+        config: the pipeline config (a policy's, :mod:`wrenchd.service.replay.policies`).
+        policy: the policy's name, recorded in the result.
+        batched: use :class:`BatchedEstimator` (same numbers, several times faster).
+        step1: the batched step 1, ``"torch"`` or ``"kernel"`` (see :class:`BatchedEstimator`).
+        adaptation: ``"worker"``: rounds in a forked process, their nets serving from
+            ``result_delay_s`` of sample time after they fell due
+            (:class:`~wrenchd.service.replay.worker.WorkerAdaptation`); ``"inline"``: each round at
+            its sample, serving from the next one.
+        result_delay_s: see ``adaptation`` [s].
+        pipeline_hook: called with the pipeline before the first sample (tests, tracing).
+        setup_changes: set-up changes to announce, ``(time [s], detail)`` each, as the daemon's
+            ``setup`` key would (:meth:`ArmPipeline.setup_change`): each before the first
+            sample at or after its time (:func:`wrenchd.service.replay.source.announced_changes`).
+    Returns:
+        the :class:`ReplayResult`.
+    """
+    config = config if config is not None else PipelineConfig()
+    if adaptation not in ("worker", "inline"):
+        raise ConfigError(f"adaptation must be 'worker' or 'inline', got {adaptation!r}")
+    msgs = joint_state_messages(session.joint_states)
+    backend = None
+    if (adaptation == "worker" and config.adaptation.enabled
+            and config.policy.name != "frozen"):
+        backend = WorkerAdaptation(config.adaptation, normalisation_of(free_space),
+                                   result_delay_s)
+    pipeline = ArmPipeline(arm, free_space, config, backend)
+    try:
+        return _run(pipeline, session, msgs, config, policy, batched, block, step1,
+                    pipeline_hook, adaptation, result_delay_s, setup_changes)
+    finally:
+        if isinstance(pipeline.estimator, BatchedEstimator):
+            pipeline.estimator.close()
+        pipeline.close()
+
+
+def _run(pipeline: ArmPipeline, session: Session, msgs, config: PipelineConfig, policy: str,
+         batched: bool, block: int, step1: str, pipeline_hook, adaptation: str,
+         result_delay_s: float, setup_changes: Sequence[tuple[float, dict[str, Any]]] = ()
+         ) -> ReplayResult:
+    offered: list[np.ndarray] = []
+    pipeline.on_offer = offered.append
+    start = time.perf_counter()
+    js = session.joint_states
+    # checked in one pass: process() skips its per-sample check of these (not of the others)
+    checked = _valid(pipeline, js).tolist()
+    if batched:
+        keep = _accepted(pipeline, js, np.asarray(checked, dtype=bool))
+        t = np.array([msgs[i].stamp_ns for i in keep], dtype=np.int64) / 1e9
+        feats = np.concatenate([js.position[keep], js.velocity[keep]], axis=1)
+        pipeline.estimator = BatchedEstimator(pipeline.estimator, t, feats, js.effort[keep],
+                                              block, step1)
+        if isinstance(pipeline.backend, WorkerAdaptation):
+            pipeline.backend.idle_work = pipeline.estimator.idle_work
+    if pipeline_hook is not None:
+        pipeline_hook(pipeline)
+    n = len(msgs)
+    wrench, external, predicted = (np.zeros((n, N_JOINTS)) for _ in range(3))
+    free, score = np.zeros(n, dtype=bool), np.zeros(n)
+    version, stamp, sample = (np.zeros(n, dtype=np.int64) for _ in range(3))
+    events: list[Event] = []
+    k = 0
+    # the estimates are kept and copied into the arrays a batch at a time (row by row costs
+    # more than the rest of the loop; a batch keeps at most a few estimator blocks alive)
+    ests: list = []
+    rows: list[int] = []
+    keep_est, keep_row = ests.append, rows.append
+
+    def flush() -> None:
+        nonlocal k
+        if not ests:
+            return
+        b = k + len(ests)
+        m = b - k                    # concatenated: several times faster than from a list
+        wrench[k:b] = np.concatenate([e.wrench for e in ests]).reshape(m, N_JOINTS)
+        external[k:b] = np.concatenate([e.external_torque for e in ests]).reshape(m, N_JOINTS)
+        predicted[k:b] = np.concatenate([e.predicted_torque for e in ests]).reshape(m, N_JOINTS)
+        free[k:b] = [e.free for e in ests]
+        score[k:b] = [e.score for e in ests]
+        version[k:b] = [e.model_version for e in ests]
+        stamp[k:b] = [e.stamp_ns for e in ests]
+        sample[k:b] = rows
+        k = b
+        ests.clear()
+        rows.clear()
+
+    process = pipeline.process
+    changes = sorted(setup_changes, key=lambda c: c[0])
+    next_ns = round(changes[0][0] * 1e9) if changes else None
+    for i, (msg, ok) in enumerate(zip(msgs, checked)):
+        while next_ns is not None and msg.stamp_ns >= next_ns:
+            t_change, detail = changes.pop(0)
+            events.extend(pipeline.setup_change(t_change, detail))
+            next_ns = round(changes[0][0] * 1e9) if changes else None
+        est, evs = process(msg, ok)
+        if evs:
+            events.extend(evs)
+        if est is None:
+            continue
+        keep_est(est)
+        keep_row(i)
+        if len(rows) >= 4096:
+            flush()
+    flush()
+    wall = time.perf_counter() - start
+    status = pipeline.status()
+    return ReplayResult(
+        t=stamp[:k] / 1e9, stamp_ns=stamp[:k], sample=sample[:k], wrench=wrench[:k],
+        external=external[:k], predicted=predicted[:k], free=free[:k], score=score[:k],
+        model_version=version[:k], events=events,
+        offered_t=np.concatenate(offered) if offered else np.zeros(0),
+        status=status, config=config.model_dump(mode="json"),
+        policy=policy or config.policy.name, wall_s=wall, samples_in=n,
+        meta={"batched": batched, "step1": step1 if batched else "stream",
+              "adaptation": adaptation, "result_delay_s": result_delay_s,
+              "rounds_waited": getattr(pipeline.backend, "rounds_waited", None),
+              "setup_changes": [[float(t), d] for t, d in sorted(setup_changes,
+                                                                 key=lambda c: c[0])],
+              "source": session.metadata.get("source")})

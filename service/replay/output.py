@@ -1,0 +1,84 @@
+"""A replay's estimates and events as MCAP (the daemon log's topics and schemas).
+
+``/wrenchd/estimate`` per estimated sample and ``/wrenchd/events``, JSON with the JSON
+Schemas of :mod:`wrenchd.adapters.mcap_log`; metadata ``wrenchd.replay`` holds the policy, the
+pipeline config and the source. No wall-clock time is written: equal replays give equal
+bytes.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+
+import numpy as np
+from mcap.writer import CompressionType, Writer
+
+from wrenchd.adapters.mcap_log import ESTIMATE_SCHEMA, EVENT_SCHEMA, TOPIC_ESTIMATE, TOPIC_EVENTS
+from wrenchd.models.errors import AdapterError
+from wrenchd.service.replay.loop import ReplayResult
+
+_V = "[" + ",".join(["%.10g"] * 6) + "]"
+_TEMPLATE = ('{"header":{"stamp":{"sec":%d,"nanosec":%d},"frame_id":"psm_base"},'
+             '"wrench":{"force":{"x":%.10g,"y":%.10g,"z":%.10g},'
+             '"torque":{"x":%.10g,"y":%.10g,"z":%.10g}},'
+             '"free":%s,"score":%.10g,"model_version":%d,"restarted":false,'
+             '"predicted":' + _V + ',"external":' + _V + '}')
+
+
+def write_replay_mcap(path: str | os.PathLike[str], r: ReplayResult,
+                      metadata: dict | None = None) -> None:
+    """Write ``r`` to ``path`` (overwritten).
+
+    Raises:
+        AdapterError: the file cannot be written.
+    """
+    try:
+        with open(path, "wb") as f:
+            w = Writer(f, compression=CompressionType.ZSTD)
+            w.start(profile="", library="wrenchd.service.replay.loop/1")
+            w.add_metadata("wrenchd.replay", {"json": json.dumps(
+                {"policy": r.policy, "config": r.config, "source": r.meta.get("source"),
+                 **(metadata or {})}, sort_keys=True, default=str)})
+            ids = {}
+            for topic, schema in ((TOPIC_ESTIMATE, ESTIMATE_SCHEMA), (TOPIC_EVENTS, EVENT_SCHEMA)):
+                sid = w.register_schema(schema["title"], "jsonschema",
+                                        json.dumps(schema, sort_keys=True).encode())
+                ids[topic] = w.register_channel(topic, "json", sid)
+            stamps = r.stamp_ns
+            score = np.minimum(r.score, 1e9)
+            events = sorted(((max(int(round(e.t * 1e9)), 0), n, e) for n, e in
+                             enumerate(r.events)), key=lambda x: (x[0], x[1]))
+            ei = 0
+            for k in range(len(stamps)):
+                s = int(stamps[k])
+                while ei < len(events) and events[ei][0] <= s:
+                    _event(w, ids[TOPIC_EVENTS], events[ei])
+                    ei += 1
+                payload = _TEMPLATE % (s // 1_000_000_000, s % 1_000_000_000,
+                                       *r.wrench[k], "true" if r.free[k] else "false",
+                                       score[k], r.model_version[k], *r.predicted[k],
+                                       *r.external[k])
+                w.add_message(ids[TOPIC_ESTIMATE], s, payload.encode(), s)
+            for ev in events[ei:]:
+                _event(w, ids[TOPIC_EVENTS], ev)
+            w.finish()
+    except OSError as exc:
+        raise AdapterError(f"cannot write {path}: {exc}") from exc
+
+
+def _event(w: Writer, channel: int, item) -> None:
+    stamp, _, ev = item
+    body = json.dumps(_finite(ev.to_json()), sort_keys=True, default=str)
+    w.add_message(channel, stamp, body.encode(), stamp)
+
+
+def _finite(x):
+    """JSON has no NaN: non-finite floats become null."""
+    if isinstance(x, float):
+        return x if np.isfinite(x) else None
+    if isinstance(x, dict):
+        return {k: _finite(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_finite(v) for v in x]
+    return x

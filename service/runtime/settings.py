@@ -1,0 +1,224 @@
+"""The daemon's settings: a TOML file plus ``WRENCHD_*`` environment overrides (pydantic-settings).
+
+Precedence, highest first: keyword arguments, environment (``WRENCHD_`` prefix, ``__`` between
+nesting levels, e.g. ``WRENCHD_LOG__DIRECTORY=/var/lib/wrenchd``,
+``WRENCHD_ZENOH__CONNECT='["tcp/10.0.0.2:7447"]'``), the TOML file, the defaults. With no
+file and no environment, the settings are the embedded default: one arm ``PSM1`` fed by the
+simulated PSM, shipped step-1 weights, loopback zenoh. ``deploy/config/*.toml`` are examples;
+``wrenchd config`` prints the effective settings.
+
+A bad value is refused with a message naming it: ``arms.0.encoding: Input should be 'json'
+or 'cdr' (got 'xml')``.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from pathlib import Path
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic_settings import (BaseSettings, PydanticBaseSettingsSource, SettingsConfigDict,
+                               TomlConfigSettingsSource)
+
+from wrenchd.adapters.mcap_log import LogConfig
+from wrenchd.adapters.zenoh_io import ZenohConfig
+from wrenchd.models.errors import ConfigError
+from wrenchd.service.pipeline.arm import PipelineConfig
+from wrenchd.service.runtime.scheduling import AUTO_REALTIME_PRIORITY
+
+#: Loopback by default: nothing leaves the machine unless the user says so.
+DEFAULT_LISTEN = "tcp/127.0.0.1:7447"
+_KEY_PART = re.compile(r"^[A-Za-z0-9_\-.{}]+(/[A-Za-z0-9_\-.{}]+)*$")
+
+
+class KeysConfig(BaseModel):
+    """Zenoh key templates; ``{prefix}`` and ``{arm}`` are substituted."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    measured_js: str = "{prefix}/{arm}/measured_js"
+    wrench: str = "{prefix}/{arm}/wrenchd/measured_cf"
+    events: str = "{prefix}/{arm}/wrenchd/events"
+    status: str = "{prefix}/{arm}/wrenchd/status"
+    alive: str = "{prefix}/{arm}/wrenchd/alive"
+    setup: str = "{prefix}/{arm}/setup"           # set-up changes in (robot side, like measured_js)
+
+    @field_validator("*")
+    @classmethod
+    def _key(cls, v: str) -> str:
+        if not _KEY_PART.match(v) or "*" in v or "$" in v:
+            raise ValueError(f"not a plain zenoh key expression: {v!r}")
+        return v
+
+    def resolve(self, prefix: str, arm: str) -> dict[str, str]:
+        return {k: v.format(prefix=prefix, arm=arm) for k, v in self.model_dump().items()}
+
+
+class ArmConfig(BaseModel):
+    """One arm served by the daemon."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    name: str = Field(default="PSM1", pattern=r"^[A-Za-z0-9_\-]+$", description="arm name")
+    encoding: Literal["json", "cdr"] = Field(default="json",
+                                             description="wire encoding of inputs and wrenches")
+    frame_id: str = Field(default="psm_base", description="frame of the published wrench")
+    model: str = Field(default="seal",
+                       description="step-1 weights: a shipped name (base, seal) or a checkpoint")
+    corr_checkpoint: str | None = Field(default=None,
+                                        description="start from this Corr (e.g. a saved version)")
+    keys: KeysConfig = Field(default_factory=KeysConfig)
+    pipeline: PipelineConfig = Field(default_factory=PipelineConfig)
+
+
+class SimulatorSettings(BaseModel):
+    """The simulated PSM started beside the daemon when ``robot = "simulated"``."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    scenario: str = Field(default="trocar-contact", description="wrenchd.adapters.sim scenario")
+    seed: int = 0
+    rate_hz: float = Field(default=200.0, gt=0.0, le=5000.0)
+
+
+class RingConfig(BaseModel):
+    """Backpressure between the zenoh callback and the estimation thread of each arm."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    capacity: int = Field(default=2000, ge=1,
+                          description="queued samples; beyond, the oldest is dropped and counted")
+
+
+class CpuPlacement(BaseModel):
+    """Which CPUs the daemon and its adaptation worker may run on (Linux affinity).
+
+    A bedside machine gives the estimator a core of its own: ``daemon = [1]``,
+    ``worker = [0]`` keeps training, the robot's other software and the cache traffic they
+    bring off the core that estimates. Unset: the scheduler decides. ``realtime_priority``
+    lets a sample's threads preempt everything else the machine runs (as the dVRK's own
+    controller runs); by default wherever the process is permitted to.
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    daemon: list[int] | None = Field(default=None, description="CPUs of the daemon's threads")
+    worker: list[int] | None = Field(default=None, description="CPUs of the adaptation worker")
+    realtime_priority: int | Literal["auto", "off"] = Field(
+        default="auto",
+        description="SCHED_FIFO priority (1-99) of the threads a sample passes through "
+                    "(zenoh's, the callbacks', estimation); the daemon's other Python threads "
+                    "one step below; the adaptation worker and the simulated robots stay in "
+                    "the normal class. An explicit "
+                    "priority needs CAP_SYS_NICE or an rtprio limit and is refused without; "
+                    f"auto: {AUTO_REALTIME_PRIORITY} where permitted, else the normal class "
+                    "(said once at start); off: the normal class")
+
+    @field_validator("realtime_priority")
+    @classmethod
+    def _priority(cls, value: int | str) -> int | str:
+        if isinstance(value, int) and not 1 <= value <= 99:
+            raise ValueError(f"{value} is not a SCHED_FIFO priority (1-99), 'auto' or 'off'")
+        return value
+
+    @field_validator("daemon", "worker")
+    @classmethod
+    def _cpus(cls, value: list[int] | None) -> list[int] | None:
+        if value is None:
+            return None
+        if not value:
+            raise ValueError("an empty CPU list would leave no CPU to run on")
+        count = os.cpu_count() or 1
+        bad = [c for c in value if not 0 <= c < count]
+        if bad:
+            raise ValueError(f"CPUs {bad} do not exist on this machine (it has {count}: "
+                             f"0..{count - 1})")
+        return sorted(set(value))
+
+
+class ServiceSettings(BaseSettings):
+    """Everything ``wrenchd serve`` needs (see the module docstring for the sources)."""
+
+    model_config = SettingsConfigDict(env_prefix="WRENCHD_", env_nested_delimiter="__",
+                                      extra="forbid", frozen=True)
+
+    robot: Literal["simulated", "external"] = Field(
+        default="simulated", description="simulated: start the simulated PSM beside the daemon")
+    prefix: str = Field(default="dvrk", pattern=r"^[A-Za-z0-9_\-]+(/[A-Za-z0-9_\-]+)*$")
+    arms: list[ArmConfig] = Field(default_factory=lambda: [ArmConfig()])
+    zenoh: ZenohConfig = Field(default_factory=lambda: ZenohConfig(listen=[DEFAULT_LISTEN]))
+    ring: RingConfig = Field(default_factory=RingConfig)
+    log: LogConfig = Field(default_factory=LogConfig)
+    simulator: SimulatorSettings = Field(default_factory=SimulatorSettings)
+    models_dir: str | None = Field(default=None,
+                                   description="adapted Corr versions (default: log dir/models)")
+    status_interval_s: float = Field(default=1.0, gt=0.0, description="status log period [s]")
+    cpus: CpuPlacement = Field(default_factory=CpuPlacement)
+    duration_s: float | None = Field(default=None, gt=0.0, description="stop after [s]")
+
+    @model_validator(mode="after")
+    def _unique_arms(self) -> ServiceSettings:
+        names = [a.name for a in self.arms]
+        if not names:
+            raise ValueError("at least one arm is needed")
+        if len(set(names)) != len(names):
+            raise ValueError(f"arm names must be unique, got {names}")
+        return self
+
+    @classmethod
+    def settings_customise_sources(cls, settings_cls: type[BaseSettings],
+                                   init_settings: PydanticBaseSettingsSource,
+                                   env_settings: PydanticBaseSettingsSource,
+                                   dotenv_settings: PydanticBaseSettingsSource,
+                                   file_secret_settings: PydanticBaseSettingsSource):
+        toml = settings_cls.model_config.get("toml_file")
+        sources: list[PydanticBaseSettingsSource] = [init_settings, env_settings]
+        if toml:
+            sources.append(TomlConfigSettingsSource(settings_cls, toml_file=toml))
+        return tuple(sources)
+
+    def effective_models_dir(self) -> str:
+        return self.models_dir or str(Path(self.log.directory) / "models")
+
+
+def _describe(exc: ValidationError) -> str:
+    lines = []
+    for err in exc.errors():
+        where = ".".join(str(p) for p in err["loc"]) or "(settings)"
+        got = err.get("input")
+        shown = repr(got) if not isinstance(got, dict) else "{...}"
+        lines.append(f"{where}: {err['msg']} (got {shown[:80]})")
+    return "; ".join(lines)
+
+
+def load_settings(path: str | Path | None = None, **overrides: Any) -> ServiceSettings:
+    """Settings from ``path`` (TOML) + environment + ``overrides``.
+
+    Raises:
+        ConfigError: the file is missing or not TOML, or a value is invalid (named).
+    """
+    if path is not None:
+        p = Path(path)
+        if not p.is_file():
+            raise ConfigError(f"{p}: no such config file")
+        import tomllib
+
+        try:
+            tomllib.loads(p.read_text())
+        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+            raise ConfigError(f"{p}: not valid TOML: {exc}") from exc
+
+        class _FromFile(ServiceSettings):
+            model_config = SettingsConfigDict(**{**ServiceSettings.model_config,
+                                                 "toml_file": str(p)})
+        cls: type[ServiceSettings] = _FromFile
+    else:
+        cls = ServiceSettings
+    try:
+        settings = cls(**overrides)
+    except ValidationError as exc:
+        where = f"{path}: " if path is not None else ""
+        raise ConfigError(f"{where}invalid settings: {_describe(exc)}") from None
+    return settings

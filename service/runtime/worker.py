@@ -1,0 +1,262 @@
+"""The daemon's adaptation worker: one background process fine-tuning every arm's ``Corr``.
+
+Training never runs in a zenoh callback nor in the thread that estimates: it runs here, in a
+separate process (``spawn``), at a lower priority (``nice``), on one torch thread, and with a
+duty cycle of at most ``max_cpu_fraction`` of its wall time, so the estimation threads keep
+their latency. The pipelines send batches of gated samples and drift notices; the worker
+sends back round results (accepted ones with their weights) and errors. An exception in a
+round is reported and the last good model keeps serving; if the process dies, the daemon
+reports it and goes on estimating with the last model.
+
+Accepted versions are checkpointed as ``{models_dir}/{arm}/corr-v{N:04d}.pt`` (the
+estimator's safe checkpoint format) so any version can be loaded again (``corr_checkpoint``
+in the arm's settings). The worker exits by itself when the daemon dies (``kill -9``
+included): it watches its parent process.
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import os
+import queue
+import signal
+import time
+import traceback
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from wrenchd.models.adaptation.adapter import AdaptationConfig, RoundResult
+
+_BATCH_S = 0.2          # pipelines send their samples at least this often [s]
+_POLL_S = 0.02          # and look for round results at most this often [s]: polling the
+                        # queue costs a select() call, too much to pay on every sample
+
+
+def _run(inbox: mp.Queue, outbox: mp.Queue, configs: dict[str, dict[str, Any]],
+         normalisations: dict[str, dict[str, np.ndarray]], models_dir: str | None,
+         max_cpu_fraction: float, cpus: list[int] | None = None) -> None:
+    """Worker process main loop."""
+    if cpus is not None:
+        os.sched_setaffinity(0, cpus)
+    from wrenchd.models.estimator.checkpoint import save_checkpoint
+    from wrenchd.models.adaptation.adapter import Adapter
+    from wrenchd.service.runtime.scheduling import normal_scheduling, one_compute_thread
+
+    one_compute_thread()          # a spawned process: NumPy's BLAS would start one per core
+    # Ctrl-C in a terminal reaches the whole process group: the daemon stops this worker with
+    # a "stop" message (and it exits by itself if the daemon dies), so it ignores the signals
+    # instead of dying mid-round with a traceback.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    normal_scheduling()           # never in the daemon's real-time class, whatever it inherited
+    try:
+        os.nice(10)
+    except OSError:
+        pass
+    parent = os.getppid()
+    adapters = {arm: Adapter(AdaptationConfig(**cfg), normalisation=normalisations.get(arm))
+                for arm, cfg in configs.items()}
+    t0 = time.monotonic()
+    busy_until = 0.0
+    while True:
+        try:
+            timeout = max(0.02, busy_until - time.monotonic())
+            message = inbox.get(timeout=timeout)
+            messages = [message]
+            while True:
+                try:
+                    messages.append(inbox.get_nowait())
+                except queue.Empty:
+                    break
+        except queue.Empty:
+            messages = []
+        if os.getppid() != parent:          # the daemon died (kill -9): do not linger
+            return
+        now = time.monotonic() - t0
+        for kind, arm, payload in messages:
+            if kind == "stop":
+                return
+            if arm not in adapters:
+                continue
+            if kind == "samples":
+                adapters[arm].add(*payload)
+            elif kind == "drift":
+                adapters[arm].on_drift(now)
+            elif kind == "setup":                  # payload: the change's sample time [s]
+                adapters[arm].on_setup_change(payload, now)
+            elif kind == "reset":
+                adapters[arm] = Adapter(adapters[arm].config,
+                                        normalisation=adapters[arm].normalisation)
+            elif kind == "fail":                   # fault injection (tests): next round throws
+                adapters[arm].fail_next = True
+        if time.monotonic() < busy_until:
+            continue
+        for arm, adapter in adapters.items():
+            start = time.monotonic()
+            try:
+                if getattr(adapter, "fail_next", False):
+                    adapter.fail_next = False
+                    raise RuntimeError("injected adaptation failure")
+                result = adapter.round(time.monotonic() - t0)
+            except Exception:  # noqa: BLE001 - reported; the last good model keeps serving
+                outbox.put(("error", arm, traceback.format_exc(limit=5)))
+                continue
+            if result is None:
+                continue
+            if result.accepted and models_dir is not None:
+                try:
+                    path = Path(models_dir) / arm / f"corr-v{result.version:04d}.pt"
+                    path.parent.mkdir(parents=True, exist_ok=True)
+                    save_checkpoint(path, adapter.corr,
+                                    data={"source": "wrenchd lifelong adaptation", "arm": arm},
+                                    validation=result.summary())
+                except OSError as exc:
+                    outbox.put(("error", arm, f"cannot checkpoint version {result.version}: "
+                                              f"{exc}"))
+            outbox.put(("round", arm, result))
+            spent = time.monotonic() - start
+            busy_until = max(busy_until, time.monotonic()
+                             + spent * (1.0 / max_cpu_fraction - 1.0))
+
+
+class WorkerProcess:
+    """The process and its queues; one per daemon."""
+
+    def __init__(self, configs: dict[str, AdaptationConfig], models_dir: str | None,
+                 max_cpu_fraction: float = 0.5,
+                 normalisations: dict[str, dict[str, np.ndarray]] | None = None,
+                 cpus: list[int] | None = None) -> None:
+        ctx = mp.get_context("spawn")
+        self.inbox: mp.Queue = ctx.Queue()
+        self.outbox: mp.Queue = ctx.Queue()
+        self.process = ctx.Process(
+            target=_run, name="wrenchd-adaptation", daemon=True,
+            args=(self.inbox, self.outbox, {a: c.model_dump() for a, c in configs.items()},
+                  normalisations or {}, models_dir, max_cpu_fraction, cpus))
+        self.process.start()
+        self._results: dict[str, list[tuple[str, Any]]] = {arm: [] for arm in configs}
+
+    def send(self, kind: str, arm: str, payload: Any = None) -> None:
+        if self.process.is_alive():
+            self.inbox.put((kind, arm, payload))
+
+    def poll(self, arm: str) -> list[tuple[str, Any]]:
+        """Results for ``arm`` received so far (other arms' are kept for them)."""
+        while True:
+            try:
+                kind, who, payload = self.outbox.get_nowait()
+            except (queue.Empty, EOFError, OSError):
+                break
+            self._results.setdefault(who, []).append((kind, payload))
+        out, self._results[arm] = self._results.get(arm, []), []
+        return out
+
+    @property
+    def alive(self) -> bool:
+        return self.process.is_alive()
+
+    def close(self) -> None:
+        try:
+            self.inbox.put(("stop", "", None))
+        except (OSError, ValueError):
+            pass
+        self.process.join(timeout=5.0)
+        if self.process.is_alive():
+            self.process.kill()
+            self.process.join(timeout=2.0)
+        for q in (self.inbox, self.outbox):
+            q.cancel_join_thread()
+            q.close()
+
+
+class _Rows:
+    """Rows (float32 unless told) appended a few at a time into storage that grows by
+    doubling, so that handing them over costs one copy, not a concatenation of hundreds of
+    small arrays on the estimation thread (measured ~0.7 ms every ``_BATCH_S``, a sample's
+    whole latency budget)."""
+
+    def __init__(self, dtype=np.float32) -> None:
+        self._data: np.ndarray | None = None
+        self._n = 0
+        self._dtype = dtype
+
+    def append(self, rows) -> None:
+        rows = np.asarray(rows, self._dtype)
+        k = len(rows)
+        if self._data is None or self._n + k > len(self._data):
+            grown = np.empty((max(256, 2 * (self._n + k)), *rows.shape[1:]), self._dtype)
+            if self._data is not None:
+                grown[:self._n] = self._data[:self._n]
+            self._data = grown
+        self._data[self._n:self._n + k] = rows
+        self._n += k
+
+    def __len__(self) -> int:
+        return self._n
+
+    def take(self) -> np.ndarray:
+        """The rows appended since the last take (a copy); empties the buffer."""
+        out = (self._data[:self._n].copy() if self._data is not None
+               else np.empty(0, self._dtype))
+        self._n = 0
+        return out
+
+
+class ProcessAdaptation:
+    """:class:`~wrenchd.service.pipeline.arm.AdaptationBackend` of one arm, backed by the worker process."""
+
+    def __init__(self, worker: WorkerProcess, arm: str) -> None:
+        self.worker, self.arm = worker, arm
+        # windows, step-1 and measured torques, sample times (float64: stamps since 1970)
+        self._batch = (_Rows(), _Rows(), _Rows(), _Rows(np.float64))
+        self._sent_at = self._polled_at = time.monotonic()
+        self.errors: list[str] = []
+        self._dead_reported = False
+
+    def offer(self, windows, step1, measured, t=None) -> None:
+        if t is None:                       # unknown times: never carried over
+            t = np.full(len(step1), np.nan)
+        for rows, part in zip(self._batch, (windows, step1, measured, t)):
+            rows.append(part)
+
+    def _send_batch(self) -> None:
+        if len(self._batch[0]):
+            self.worker.send("samples", self.arm, tuple(rows.take() for rows in self._batch))
+        self._sent_at = time.monotonic()
+
+    def drift(self, t: float) -> None:
+        self._send_batch()
+        self.worker.send("drift", self.arm)
+
+    def setup_change(self, t: float) -> None:
+        self._send_batch()                  # the samples before it first
+        self.worker.send("setup", self.arm, float(t))
+
+    def reset(self, t: float) -> None:
+        for rows in self._batch:
+            rows.take()
+        self.worker.send("reset", self.arm)
+
+    def tick(self, t: float) -> list[RoundResult]:
+        now = time.monotonic()
+        if now - self._polled_at < _POLL_S:
+            return []
+        self._polled_at = now
+        if now - self._sent_at >= _BATCH_S:
+            self._send_batch()
+            if not self.worker.alive and not self._dead_reported:
+                self._dead_reported = True
+                self.errors.append("adaptation worker process is not running")
+        results = []
+        for kind, payload in self.worker.poll(self.arm):
+            if kind == "round":
+                results.append(payload)
+            else:
+                self.errors.append(str(payload))
+        return results
+
+    def close(self) -> None:
+        for rows in self._batch:
+            rows.take()

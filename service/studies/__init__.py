@@ -1,0 +1,1 @@
+"""Studies that regenerate the committed reports; nothing in the runtime imports them."""

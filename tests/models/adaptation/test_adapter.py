@@ -1,0 +1,287 @@
+"""The lifelong adaptation core: validated swaps, versions, determinism, drift."""
+
+import copy
+
+import numpy as np
+import torch
+
+from wrenchd.models.estimator.corr_finetune import CorrFineTuner
+from wrenchd.models.adaptation.adapter import AdaptationConfig, Adapter, _lemire_draws
+
+
+def samples(n: int, seed: int = 0, gain: float = 0.3):
+    """Windows (n, 10, 12), step-1 torques and measured torques = step 1 + a smooth effect."""
+    rng = np.random.default_rng(seed)
+    x = rng.uniform(-1, 1, (n, 12))
+    windows = np.repeat(x[:, None, :], 10, axis=1)
+    step1 = rng.normal(0, 0.5, (n, 6))
+    effect = gain * np.tanh(x[:, :6] * 2.0)                 # what the Corr has to learn
+    return windows, step1, step1 + effect + rng.normal(0, 0.01, (n, 6))
+
+
+def run_rounds(adapter: Adapter, n_rounds: int):
+    return [r for k in range(n_rounds) if (r := adapter.round(10.0 * k)) is not None]
+
+
+def test_accepted_rounds_lower_the_held_out_error_and_number_versions():
+    adapter = Adapter(AdaptationConfig(min_train_samples=200, round_steps=30, interval_s=1.0))
+    adapter.add(*samples(3000))
+    results = run_rounds(adapter, 12)
+    accepted = [r for r in results if r.accepted]
+    assert accepted, [r.summary() for r in results]
+    for r in results:                                     # a swap never raises the error
+        if r.accepted:
+            assert r.val_after < r.val_before * (1 - adapter.config.min_improvement)
+    assert [r.version for r in accepted] == list(range(1, len(accepted) + 1))
+    assert accepted[-1].val_after < 0.5 * results[0].val_before
+
+
+def test_a_diverging_candidate_is_never_swapped_in():
+    adapter = Adapter(AdaptationConfig(min_train_samples=200, lr=50.0, round_steps=20,
+                                       weight_decay=0.0))
+    adapter.add(*samples(2000))
+    results = run_rounds(adapter, 5)
+    assert results and not any(r.accepted for r in results)
+    assert adapter.version == 0
+    x, s, y = adapter._split(np.stack(adapter.holdout))
+    with torch.no_grad():                                 # the serving net still does nothing
+        np.testing.assert_allclose(adapter.corr(x, s).numpy(), s.numpy(), atol=1e-6)
+
+
+def test_same_seed_same_data_same_model():
+    states = []
+    for _ in range(2):
+        adapter = Adapter(AdaptationConfig(min_train_samples=200, seed=7))
+        adapter.add(*samples(1500, seed=3))
+        run_rounds(adapter, 4)
+        states.append({k: v.clone() for k, v in adapter.corr.state_dict().items()})
+    for k in states[0]:
+        assert torch.equal(states[0][k], states[1][k])
+
+
+def test_drift_makes_rounds_eager_and_restarts_the_holdout():
+    cfg = AdaptationConfig(min_train_samples=200, interval_s=10.0, eager_interval_s=1.0)
+    adapter = Adapter(cfg)
+    adapter.add(*samples(1500))
+    assert adapter.round(0.0) is not None and adapter.round(1.0) is None
+    adapter.on_drift(2.0)
+    assert len(adapter.holdout) == 0
+    r = adapter.round(2.0)
+    assert r is not None and r.eager
+    assert adapter.round(3.0) is not None                 # eager: every second
+    assert not adapter.eager(2.0 + cfg.eager_s + 1)
+
+
+def test_rounds_train_on_the_buffer_rows_normalised_once():
+    """The rings keep their rows' network input and target: a mini-batch drawn from them is,
+    to the bit, the raw rows at the same draws normalised then, after the reservoir has been
+    overwritten and the holdout cleared; the holdout keeps the newest rows, oldest first."""
+    cfg = AdaptationConfig(min_train_samples=200, recent_size=300, reservoir_size=200,
+                           holdout_size=50, round_steps=3)
+    adapter = Adapter(cfg)
+    w, s, m = samples(1200, seed=4)
+    adapter.add(w[:700], s[:700], m[:700])
+    assert adapter.round(0.0) is not None
+    adapter.on_drift(1.0)
+    adapter.add(w[700:], s[700:], m[700:])               # more evictions and replacements
+    assert adapter.round(1.0) is not None
+    rows = np.concatenate([w.reshape(1200, -1), s, m], axis=1).astype(np.float32)
+    held = rows[np.arange(1200) % cfg.holdout_every == cfg.holdout_every - 1]
+    np.testing.assert_array_equal(adapter.holdout, held[-cfg.holdout_size:])
+    state = adapter._rng.bit_generator.state
+    inp, target = adapter._batch(cfg.batch_size)
+    rng = np.random.default_rng()
+    rng.bit_generator.state = state
+    n_recent = int(round(cfg.batch_size * cfg.recent_fraction))
+    raw = np.concatenate([
+        adapter.recent.data()[rng.integers(0, adapter.recent.n, n_recent)],
+        adapter.reservoir.data()[rng.integers(0, adapter.reservoir.n,
+                                              cfg.batch_size - n_recent)]])
+    want_inp, want_target = adapter._net_io(raw, adapter._scaling(adapter.corr), tensors=False)
+    np.testing.assert_array_equal(inp, want_inp)
+    np.testing.assert_array_equal(target, want_target)
+
+
+def test_a_round_draws_its_batches_as_successive_integers_calls():
+    """All of a round's mini-batch indices in one vectorised pass: the numbers and the
+    generator's state after them are those of the successive ``integers`` calls; where
+    Lemire's method would re-draw, nothing is drawn (the round falls back to the calls)."""
+    for seed, pre in ((0, 0), (1, 1), (2, 5)):
+        a, b = np.random.default_rng(seed), np.random.default_rng(seed)
+        a.integers(0, 3, pre)
+        b.integers(0, 3, pre)
+        calls = [(2999, 77), (6000, 51)] * 40
+        got = _lemire_draws(b, calls)
+        want = np.concatenate([a.integers(0, n, k) for n, k in calls])
+        np.testing.assert_array_equal(got, want)
+        np.testing.assert_array_equal(a.integers(0, 10 ** 6, 7), b.integers(0, 10 ** 6, 7))
+    rng = np.random.default_rng(3)
+    state = rng.bit_generator.state
+    assert _lemire_draws(rng, [(2 ** 31 + 1, 64)]) is None   # ~half of the draws re-draw
+    assert rng.bit_generator.state == state
+    assert _lemire_draws(rng, [(1, 4)]) is None               # integers draws nothing there
+
+
+def _stepped_adapter(refit_shrink: float) -> Adapter:
+    """An adapter trained on one regime, then offered samples after a step change of the
+    measured torques (a drift): the recent ring holds only the new regime, the reservoir
+    mostly the old one."""
+    cfg = AdaptationConfig(min_train_samples=200, recent_size=500, reservoir_size=1000,
+                           round_steps=20, interval_s=1.0, refit_shrink=0.0)
+    adapter = Adapter(cfg)
+    adapter.add(*samples(2000, seed=5))
+    assert any(r.accepted for r in run_rounds(adapter, 6))
+    w, s, m = samples(700, seed=6, gain=0.5)
+    adapter.on_drift(100.0)
+    adapter.add(w, s, m + np.array([0.3, -0.2, 0.1, 0.0, 0.2, -0.1]))
+    adapter.config = cfg.model_copy(update={"refit_shrink": refit_shrink})
+    return adapter
+
+
+def test_the_refit_moves_only_the_output_layer_towards_a_step_change():
+    """One round after the change: with the refit the candidate's held-out error on the new
+    regime is well below Adam's alone, from the same mini-batches (the refit draws nothing),
+    and the hidden layer is Adam's, to the bit."""
+    off, on = _stepped_adapter(0.0), _stepped_adapter(1.0)
+    r_off, r_on = off.round(100.0), on.round(100.0)
+    assert r_off.val_before == r_on.val_before
+    assert r_on.val_after < 0.8 * r_off.val_after, (r_on.summary(), r_off.summary())
+    assert r_on.accepted
+    assert off._rng.bit_generator.state == on._rng.bit_generator.state
+    if r_off.accepted:
+        first_off, first_on = off.corr.net[0], on.corr.net[0]
+        assert torch.equal(first_off.weight, first_on.weight)
+        assert torch.equal(first_off.bias, first_on.bias)
+        assert not torch.equal(off.corr.net[2].weight, on.corr.net[2].weight)
+
+
+def test_refit_off_is_adam_alone_to_the_bit():
+    """``refit_shrink`` 0: the candidate is exactly the fine-tuner's Adam steps on the round's
+    mini-batches, as before the refit existed; a huge shrink leaves the layer as Adam's."""
+    adapter, huge = _stepped_adapter(0.0), _stepped_adapter(1e9)
+    twin = _stepped_adapter(0.0)
+    assert adapter.round(100.0).accepted and huge.round(100.0).accepted
+    cfg = twin.config
+    scaling = twin._round_scaling()
+    for ring in (twin.recent, twin.reservoir, twin._holdout):
+        ring.normalise(scaling, twin._net_rows)
+    tuner = CorrFineTuner(twin.corr.net, lr=cfg.lr, weight_decay=cfg.weight_decay)
+    for drawn in twin._round_draws(cfg.batch_size, cfg.round_steps):
+        tuner.step(*twin._batch(cfg.batch_size, drawn), with_loss=False)
+    want = copy.deepcopy(twin.corr)
+    tuner.write_to(want.net)
+    for k, v in want.state_dict().items():
+        assert torch.equal(adapter.corr.state_dict()[k], v), k
+        np.testing.assert_allclose(huge.corr.state_dict()[k].numpy(), v.numpy(), atol=1e-6)
+
+
+def wall_samples(t: np.ndarray, pressure: np.ndarray, seed: int = 0):
+    """Samples whose measured yaw and pitch torques hold the body wall at ``pressure`` (the
+    simulator's effect): windows whose newest row is (q, dq) of a yaw/pitch sweep."""
+    from wrenchd.models.physics.effects.base import Motion
+    from wrenchd.models.physics.effects.body_wall import BodyWall
+
+    rng = np.random.default_rng(seed)
+    n = len(t)
+    q = np.zeros((n, 6))
+    dq = np.zeros((n, 6))
+    q[:, 0] = 0.5 * np.sin(2 * np.pi * 0.13 * t)
+    q[:, 1] = 0.4 * np.sin(2 * np.pi * 0.08 * t + 0.3)
+    dq[:, 0] = 0.5 * 2 * np.pi * 0.13 * np.cos(2 * np.pi * 0.13 * t)
+    dq[:, 1] = 0.4 * 2 * np.pi * 0.08 * np.cos(2 * np.pi * 0.08 * t + 0.3)
+    x = np.concatenate([q, dq], axis=1)
+    windows = np.repeat(x[:, None, :], 10, axis=1)
+    step1 = rng.normal(0, 0.2, (n, 6))
+    m = Motion(t, q, dq, np.zeros_like(q), None)
+    wall = np.stack([BodyWall().torque(m.slice(slice(i, i + 1)), {"pressure_mmhg": p})[0]
+                     for i, p in enumerate(pressure)])
+    return windows, step1, step1 + wall, q, dq
+
+
+def test_announced_change_carries_the_buffer_over():
+    """Samples at 12 mmHg, then an announced step to 20 mmHg: once the new segment has a
+    bin, every buffered sample from before the change has its yaw and pitch targets moved by
+    (k_after - k_before) g(q) (within the tracker's estimate), later ones are untouched, and
+    the other joints never change."""
+    from wrenchd.models.body_wall_tracker import wall_regressors
+
+    rate = 100.0
+    t = np.arange(0, 90.0, 1 / rate)
+    pressure = np.where(t < 60.0, 12.0, 20.0)
+    windows, step1, measured, q, dq = wall_samples(t, pressure)
+    config = AdaptationConfig(min_train_samples=100, round_steps=2, recent_size=2000,
+                              reservoir_size=2000)
+    adapter = Adapter(config)
+    before = t < 60.0
+    adapter.add(windows[before], step1[before], measured[before], t[before])
+    adapter.on_setup_change(60.0)
+    adapter.add(windows[~before], step1[~before], measured[~before], t[~before])
+    original = {}
+    for ring in (adapter.recent, adapter.reservoir, adapter._holdout):
+        original[id(ring)] = ring.rows[:ring.n].copy()
+    adapter.round(90.0)
+    k_then, k_now = adapter.body_wall.stiffness(0), adapter.body_wall.stiffness(1)
+    assert abs(k_then - 580.0) < 10.0 and abs(k_now - 900.0) < 15.0
+    kcol = 10 * 12 + 6
+    moved = 0
+    for ring in (adapter.recent, adapter.reservoir, adapter._holdout):
+        n = ring.n
+        diff = ring.rows[:n].astype(float) - original[id(ring)].astype(float)
+        old = ring.stamp[:n] < 60.0
+        g, _ = wall_regressors(*adapter._positions(original[id(ring)]),
+                               config.body_wall.incision_m)
+        np.testing.assert_allclose(diff[old][:, kcol:kcol + 2], (k_now - k_then) * g[old],
+                                   atol=1e-4)
+        assert not diff[~old].any()
+        assert not diff[:, :kcol].any() and not diff[:, kcol + 2:].any()
+        assert (ring.shift[:n][old] == k_now - k_then).all()
+        moved += int(old.sum())
+    assert moved > 1000
+
+
+def test_no_announcement_no_carry_over_and_unknown_times_stay():
+    rate = 100.0
+    t = np.arange(0, 40.0, 1 / rate)
+    windows, step1, measured, *_ = wall_samples(t, np.full(len(t), 12.0))
+    adapter = Adapter(AdaptationConfig(min_train_samples=100, round_steps=2))
+    adapter.add(windows, step1, measured, t)
+    adapter.add(windows[:500], step1[:500], measured[:500])          # no times
+    rows = adapter.recent.rows[:adapter.recent.n].copy()
+    adapter.round(40.0)
+    assert (adapter.recent.rows[:adapter.recent.n] == rows).all()
+    adapter.on_setup_change(40.0)
+    adapter.add(windows[:1500], step1[:1500], measured[:1500], t[:1500] + 40.0)
+    adapter.round(60.0)
+    unknown = np.isnan(adapter.recent.stamp[:adapter.recent.n])
+    assert unknown.sum() == 400 and (adapter.recent.shift[:adapter.recent.n][unknown] == 0).all()
+
+
+def test_a_restarted_clock_keeps_what_was_carried_and_starts_the_tracker_afresh():
+    """The robot's clock restarts (the pipeline's clock_reset): rows carried before keep
+    their targets, are never carried again, and the new timeline's rows are not shifted by
+    the old timeline's segments."""
+    rate = 100.0
+    t = np.arange(0, 60.0, 1 / rate)
+    windows, step1, measured, *_ = wall_samples(t, np.where(t < 30.0, 12.0, 20.0))
+    adapter = Adapter(AdaptationConfig(min_train_samples=100, round_steps=2))
+    adapter.add(windows[t < 30.0], step1[t < 30.0], measured[t < 30.0], t[t < 30.0])
+    adapter.on_setup_change(30.0)
+    adapter.add(windows[t >= 30.0], step1[t >= 30.0], measured[t >= 30.0], t[t >= 30.0])
+    adapter.round(60.0)
+    n = adapter.recent.n
+    assert (adapter.recent.shift[:n] != 0).any()
+    carried = adapter.recent.rows[:n].copy()
+    # a new timeline from 0 s, at 20 mmHg
+    t2 = np.arange(0, 20.0, 1 / rate)
+    w2, s2, m2, *_ = wall_samples(t2, np.full(len(t2), 20.0), seed=1)
+    adapter.add(w2, s2, m2, t2)
+    assert adapter.body_wall.starts == [] and adapter.body_wall.latest < 20.0
+    adapter.round(80.0)
+    ring = adapter.recent
+    fresh = ~np.isnan(ring.stamp[:ring.n])
+    assert fresh.sum() == 1600 and (ring.shift[:ring.n] == 0).all()
+    kept = ~fresh
+    assert kept.sum() > 0
+    # the rows left from before the restart are exactly as they were carried
+    old_rows = {row.tobytes() for row in carried}
+    assert all(row.tobytes() in old_rows for row in ring.rows[:ring.n][kept])

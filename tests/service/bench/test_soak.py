@@ -1,0 +1,24 @@
+"""The soak benchmark, short: the daemon as a real subprocess fed at 200 Hz over loopback
+zenoh for a few seconds; every joint state gets its wrench and memory is sampled."""
+
+import math
+
+from wrenchd.service.bench.daemon_latency import bench_service
+
+
+def test_short_soak_drops_nothing_and_reports_memory():
+    r = bench_service(n_arms=1, rate_hz=200.0, duration_s=6.0, warmup_s=2.0)
+    assert r["dropped"] == 0
+    assert r["rate_hz"] == 200.0
+    arm = r["per_arm"]["PSM1"]
+    assert arm["received"] == int(8.0 * 200)
+    assert all(math.isfinite(r[k]) for k in ("rss_start_mb", "rss_end_mb", "e2e_p50_us"))
+    assert 50.0 < r["rss_start_mb"] < 8000.0            # the daemon and its worker, in MB
+
+
+def test_the_floor_bench_answers_every_joint_state_without_estimating():
+    """bench floor: the same bench against the daemon's plumbing alone (two arms)."""
+    r = bench_service(n_arms=2, rate_hz=200.0, duration_s=3.0, warmup_s=1.0, floor=True)
+    assert r["daemon"].startswith("bench floor") and r["dropped"] == 0
+    assert [a["received"] for a in r["per_arm"].values()] == [800, 800]
+    assert math.isfinite(r["e2e_p99_us"]) and r["daemon_cpu_us_per_sample"] > 0

@@ -1,0 +1,117 @@
+"""``wrenchd echo`` against a real daemon: three processes and this one on loopback zenoh."""
+
+from __future__ import annotations
+
+import json
+import re
+import signal
+import subprocess
+import sys
+
+from tests.service.runtime.test_daemon import free_port, write_config
+
+CLI = [sys.executable, "-m", "wrenchd"]
+
+
+def test_echo_prints_live_wrenches_events_and_status(tmp_path):
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    config = write_config(tmp_path / "wrenchd.toml", endpoint, "json", tmp_path / "logs")
+    daemon = subprocess.Popen([*CLI, "serve", "--config", str(config)], stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE, text=True)
+    echo = None
+    try:
+        assert "dvrk/PSM2/measured_js" in daemon.stdout.readline()
+        echo = subprocess.Popen([*CLI, "echo", "--arm", "PSM2", "--connect", endpoint,
+                                 "--count", "40", "--every", "1", "--events", "--timeout", "90"],
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        assert "listening on 'dvrk/PSM2/wrenchd/measured_cf'" in echo.stdout.readline()
+        robot = subprocess.run(
+            [*CLI, "robot", "--scenario", "trocar", "--seed", "2", "--arm", "PSM2",
+             "--duration", "3", "--connect", endpoint, "--out-dir", str(tmp_path / "robot"),
+             "--quiet"], capture_output=True, text=True, timeout=120)
+        assert robot.returncode == 0, robot.stderr
+        out, err = echo.communicate(timeout=60)
+        assert echo.returncode == 0, err
+        # wrenchd announce: a set-up change notice the daemon takes (status shows it)
+        told = subprocess.run([*CLI, "announce", "--arm", "PSM2", "--connect", endpoint,
+                               "--pressure", "18", "--note", "pressure up"],
+                              capture_output=True, text=True, timeout=60)
+        # stamped on another clock (1000 s; the robot's ran 3 s): the daemon refuses it, and
+        # announce says why
+        foreign = subprocess.run([*CLI, "announce", "--arm", "PSM2", "--connect", endpoint,
+                                  "--at", "1000"], capture_output=True, text=True, timeout=60)
+        status = subprocess.run([*CLI, "echo", "--arm", "PSM2", "--connect", endpoint,
+                                 "--status", "--timeout", "10"], capture_output=True, text=True,
+                                timeout=60)
+    finally:
+        if echo is not None and echo.poll() is None:
+            echo.kill()
+        daemon.send_signal(signal.SIGINT)
+        daemon.communicate(timeout=60)
+    line = re.compile(r"t=\s*[\d.]+ s  F=\[.*\] N  \|F\|=\s*[\d.]+ N  T=\[.*\] N m  "
+                      r"(free|contact) v\d+")
+    printed = [x for x in out.splitlines() if x.startswith("t=")]
+    assert len(printed) == 40 and all(line.match(x) for x in printed), printed[:3]
+    stamps = [float(x.split()[0][2:] or x.split()[1]) for x in printed]
+    assert stamps == sorted(stamps)
+    assert any(x.startswith("event: ") and '"calibrating"' in x for x in out.splitlines())
+    assert out.splitlines()[-1] == "wrenchd echo: 40 wrenches"
+    assert status.returncode == 0, status.stderr
+    answer = json.loads(status.stdout)
+    assert answer["counters"]["estimated"] >= 40 and answer["arm"] == "PSM2"
+    assert told.returncode == 0, told.stderr
+    assert "sent" in told.stdout and "dvrk/PSM2/setup" in told.stdout
+    assert "accepted: the change is at t = " in told.stdout and "carry-over on" in told.stdout
+    assert foreign.returncode == 1, foreign.stderr
+    assert "refused: set-up change stamped 1000.000 s" in foreign.stdout
+    assert "not the robot's clock?" in foreign.stdout
+    assert answer["counters"]["setup_changes"] == 1
+    assert answer["counters"]["error_kinds"] == {"setup": 1}
+    assert answer["setup"]["pressure_mmhg"] == 18.0 and answer["setup"]["note"] == "pressure up"
+
+
+def test_echo_says_when_no_daemon_answers():
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    status = subprocess.run([*CLI, "echo", "--connect", endpoint, "--status", "--timeout", "1"],
+                            capture_output=True, text=True, timeout=60)
+    assert status.returncode == 1
+    assert "no answer from 'dvrk/PSM1/wrenchd/status' within 1 s" in status.stdout
+    quiet = subprocess.run([*CLI, "echo", "--connect", endpoint, "--timeout", "1"],
+                           capture_output=True, text=True, timeout=60)
+    assert quiet.returncode == 1 and "wrenchd echo: 0 wrenches" in quiet.stdout
+
+
+def test_announce_says_when_no_daemon_listens_and_refuses_bad_values():
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    told = subprocess.run([*CLI, "announce", "--connect", endpoint, "--timeout", "1"],
+                          capture_output=True, text=True, timeout=60)
+    assert told.returncode == 1
+    assert "no daemon subscribed to 'dvrk/PSM1/setup'" in told.stdout
+    bad = subprocess.run([*CLI, "announce", "--pressure", "250"], capture_output=True,
+                         text=True, timeout=60)
+    assert bad.returncode != 0 and "--pressure must be in [0, 100]" in bad.stderr + bad.stdout
+
+
+def test_announce_falls_back_on_the_status_when_no_event_comes_back(tmp_path):
+    """A daemon whose events go elsewhere (its own [arms.keys]): announce learns from the
+    status counters whether the notice was taken (a stamped one) or refused (an unstamped one
+    before the arm's first sample: the daemon cannot place it)."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    config = write_config(tmp_path / "wrenchd.toml", endpoint, "json", tmp_path / "logs")
+    config.write_text(config.read_text() + '[arms.keys]\nevents = "elsewhere/events"\n')
+    daemon = subprocess.Popen([*CLI, "serve", "--config", str(config)], stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE, text=True)
+    try:
+        assert "dvrk/PSM2/measured_js" in daemon.stdout.readline()
+        runs = [subprocess.run([*CLI, "announce", "--arm", "PSM2", "--connect", endpoint,
+                                "--timeout", "2", *at], capture_output=True, text=True,
+                               timeout=60) for at in (["--at", "0.5"], [])]
+    finally:
+        daemon.send_signal(signal.SIGINT)
+        _, err = daemon.communicate(timeout=60)
+    assert daemon.returncode == 0, err
+    taken, refused = runs
+    assert taken.returncode == 0, taken.stdout + taken.stderr
+    assert "accepted (the daemon's status counts it" in taken.stdout
+    assert refused.returncode == 1, refused.stdout + refused.stderr
+    assert "refused (the daemon's status counts a set-up error" in refused.stdout

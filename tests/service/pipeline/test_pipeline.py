@@ -1,0 +1,228 @@
+"""One arm's pipeline: validation, gaps, swaps that keep the state, contact kept out of training."""
+
+import numpy as np
+import pytest
+
+from wrenchd.adapters.messages import JointStateMsg
+from wrenchd.adapters.sim.scenarios import run_scenario
+from wrenchd.models.estimator.pretrained import load_pretrained
+from wrenchd.service.pipeline.arm import ArmPipeline, PipelineConfig, PolicyConfig
+
+
+@pytest.fixture(scope="module")
+def seal():
+    return load_pretrained("seal")
+
+
+@pytest.fixture(scope="module")
+def trocar():
+    return run_scenario("trocar", 6.0, 4).joint_states
+
+
+def msg(js, i, t=None, **change):
+    fields = {"position": js.position[i].copy(), "velocity": js.velocity[i].copy(),
+              "effort": js.effort[i].copy()}
+    fields.update(change)
+    stamp = int(round((js.t[i] if t is None else t) * 1e9))
+    return JointStateMsg(stamp, "", (), **fields)
+
+
+def test_bad_samples_are_counted_events_and_never_estimated(seal, trocar):
+    p = ArmPipeline("PSM1", seal, PipelineConfig(policy=PolicyConfig(name="frozen")))
+    for i in range(20):
+        est, _ = p.process(msg(trocar, i))
+        assert est is not None
+    nan_velocity = trocar.velocity[20].copy()
+    nan_velocity[2] = np.nan
+    bad = [
+        (msg(trocar, 20, velocity=nan_velocity), "invalid"),
+        (msg(trocar, 20, effort=np.full(6, 1e6)), "invalid"),
+        (JointStateMsg(int(trocar.t[20] * 1e9), "", (), np.zeros(7), np.zeros(7), np.zeros(7)),
+         "invalid"),
+        (msg(trocar, 19), "duplicate"),
+        (msg(trocar, 10), "time_backwards"),
+    ]
+    for m, kind in bad:
+        est, events = p.process(m)
+        assert est is None
+        assert [(e.kind, e.detail["error"]) for e in events] == [("error", kind)]
+    assert p.counters.errors == len(bad)
+    assert p.counters.error_kinds == {"invalid": 3, "duplicate": 1, "time_backwards": 1}
+    est, _ = p.process(msg(trocar, 20))                 # the stream goes on
+    assert est is not None and not est.restarted
+
+
+def test_a_gap_restarts_the_recurrent_state(seal, trocar):
+    p = ArmPipeline("PSM1", seal, PipelineConfig(policy=PolicyConfig(name="frozen")))
+    for i in range(50):
+        p.process(msg(trocar, i))
+    est, events = p.process(msg(trocar, 200))           # 0.75 s later
+    assert est.restarted and [e.kind for e in events] == ["gap"]
+    assert p.counters.gaps == 1
+
+
+def test_a_model_swap_keeps_the_recurrent_state(seal, trocar):
+    from wrenchd.service.pipeline.arm import initial_corr
+
+    p = ArmPipeline("PSM1", seal, PipelineConfig(policy=PolicyConfig(name="frozen")))
+    ref = ArmPipeline("PSM1", seal, PipelineConfig(policy=PolicyConfig(name="frozen")))
+    for i in range(100):
+        a, _ = p.process(msg(trocar, i))
+        b, _ = ref.process(msg(trocar, i))
+        if i == 50:                                      # an identical (zero) Corr swapped in
+            p.estimator.swap_correction(initial_corr(p.config.adaptation))
+        np.testing.assert_allclose(a.wrench, b.wrench, rtol=1e-9, atol=1e-9)
+        assert a.restarted == b.restarted == (i == 0)
+
+
+def test_contact_never_reaches_training_on_a_contact_session(seal):
+    """The gated policy on trocar-contact after its calibration: the training offers hold no
+    sample that the simulator labels as in contact, on this session."""
+    session = run_scenario("trocar-contact", 75.0, 6, contact_free_s=25.0)
+    js, truth = session.joint_states, session.truth
+    cfg = PipelineConfig(calibration_s=20.0)
+    p = ArmPipeline("PSM1", seal, cfg)
+    offered: list[float] = []
+    p.on_offer = lambda ts: offered.extend(ts.tolist())
+    flags = np.zeros(len(js), bool)
+    for i in range(len(js)):
+        est, _ = p.process(msg(js, i))
+        flags[i] = est.free
+    idx = np.searchsorted(js.t, offered)
+    assert truth.in_contact[js.t > 25.0].sum() > 1000    # the session has contacts to refuse
+    assert len(offered) > 5000
+    assert not truth.in_contact[idx].any()
+    # the gate sees strong contacts (weak, lateral ones at shallow insertion can sit under its
+    # bound: their joint torques are as small as the free-motion residual)
+    strong = truth.in_contact & (np.linalg.norm(truth.external_wrench[:, :3], axis=1) > 3.0)
+    assert strong.sum() > 100 and (~flags[strong]).mean() > 0.95
+    assert p.counters.discarded_onsets > 0               # onsets were dropped from the line
+
+
+def test_a_backlog_processed_at_once_gives_what_one_by_one_gives(seal, trocar):
+    """process_many (the daemon's backlog path) against process, sample by sample, on a
+    stream with a NaN, a duplicate, a stamp going backwards and a gap: the same refusals and
+    events, estimates equal to float32 rounding, the same gate verdicts and restarts."""
+    stream = [msg(trocar, i) for i in range(400)]
+    stream[30] = msg(trocar, 30, velocity=np.full(6, np.nan))
+    stream[60] = msg(trocar, 59)                                  # duplicate
+    stream[90] = msg(trocar, 80)                                  # backwards
+    stream[200:] = [msg(trocar, i, t=trocar.t[i] + 0.3) for i in range(200, 400)]   # a gap
+    config = PipelineConfig(policy=PolicyConfig(name="frozen"), calibration_s=0.5)
+    one = ArmPipeline("PSM1", seal, config)
+    many = ArmPipeline("PSM1", seal, config)
+    ref = [one.process(m) for m in stream]
+    got, rng, i = [], np.random.default_rng(1), 0
+    while i < len(stream):
+        k = int(rng.integers(1, 30))
+        got += many.process_many(stream[i:i + k])
+        i += k
+    assert len(got) == len(ref)
+    batched = 0
+    for (a, ev_a), (b, ev_b) in zip(ref, got):
+        assert [e.kind for e in ev_a] == [e.kind for e in ev_b]
+        assert (a is None) == (b is None)
+        if a is not None:
+            np.testing.assert_allclose(b.wrench, a.wrench, rtol=1e-4, atol=1e-5)
+            np.testing.assert_allclose(b.external_torque, a.external_torque, atol=1e-5)
+            assert (a.free, a.restarted, a.index) == (b.free, b.restarted, b.index)
+            batched += 1
+    assert batched == 400 - 3 and one.counters == many.counters
+
+
+def test_arms_stepped_together_give_what_each_alone_gives(seal):
+    """process_many_joint (three arms of one daemon sharing the step-1 kernel, their
+    recurrences as one batch, each arm with its own number of queued samples, none
+    included) against each arm's own process, sample by sample: equal to float32 rounding,
+    same refusals, events, restarts and gate verdicts (arm 2 gets a NaN and a gap, arm 3
+    starts late)."""
+    sessions = [run_scenario("trocar", 3.0, s).joint_states for s in (4, 5, 6)]
+    streams = [[msg(js, i) for i in range(len(js))] for js in sessions]
+    streams[1][40] = msg(sessions[1], 40, velocity=np.full(6, np.nan))
+    streams[1][300:] = [msg(sessions[1], i, t=sessions[1].t[i] + 0.2)
+                        for i in range(300, len(sessions[1]))]
+    streams[2] = streams[2][100:]
+    config = PipelineConfig(policy=PolicyConfig(name="frozen"), calibration_s=0.5)
+    alone = [ArmPipeline(f"PSM{k}", seal, config) for k in (1, 2, 3)]
+    joint = [ArmPipeline(f"PSM{k}", seal, config) for k in (1, 2, 3)]
+    for p in joint[1:]:
+        p.estimator.share_step1(joint[0].estimator)
+    ref = [[p.process(m) for m in stream] for p, stream in zip(alone, streams)]
+    got: list[list] = [[], [], []]
+    pos, rng = [0, 0, 0], np.random.default_rng(2)
+    while any(pos[a] < len(streams[a]) for a in range(3)):
+        chunks = []
+        for a in range(3):
+            k = int(rng.integers(0, 9))
+            chunks.append(streams[a][pos[a]:pos[a] + k])
+            pos[a] += len(chunks[-1])
+        for a, res in enumerate(ArmPipeline.process_many_joint(joint, chunks)):
+            got[a] += res
+    compared = 0
+    for r_arm, g_arm in zip(ref, got):
+        assert len(r_arm) == len(g_arm)
+        for (a, ev_a), (b, ev_b) in zip(r_arm, g_arm):
+            assert [e.kind for e in ev_a] == [e.kind for e in ev_b]
+            assert (a is None) == (b is None)
+            if a is not None:
+                np.testing.assert_allclose(b.wrench, a.wrench, rtol=1e-4, atol=1e-5)
+                assert (a.free, a.restarted, a.index) == (b.free, b.restarted, b.index)
+                compared += 1
+    assert compared == sum(len(s) for s in streams) - 1
+    assert [p.counters for p in alone] == [p.counters for p in joint]
+
+
+def test_samples_waiting_from_before_a_contacts_onset_margin_are_offered_after_it(seal):
+    """The delay line at a contact: samples queued within ``onset_margin_s`` of the gate's
+    onset are dropped, older ones wait through the contact and are offered after it (the
+    sample that ends a contact carries its onset; read as "onset unknown", it once dropped the
+    whole line at every contact's end)."""
+    js = run_scenario("trocar", 20.0, 4).joint_states
+    effort = js.effort.copy()
+    push = (js.t >= 12.0) & (js.t < 14.0)
+    effort[push, 2] += 3.0                         # 3 N along the shaft: 30x the gate's floor
+    cfg = PipelineConfig(calibration_s=0.0,
+                         policy=PolicyConfig(release_delay_s=2.5, onset_margin_s=0.5))
+    p = ArmPipeline("PSM1", seal, cfg)
+    offered: list[float] = []
+    p.on_offer = lambda ts: offered.extend(ts.tolist())
+    free = np.array([p.process(msg(js, i, effort=effort[i]))[0].free for i in range(len(js))])
+    onset = js.t[int(np.argmax(~free & (js.t > 10.0)))]
+    assert 12.0 <= onset < 12.2 and not free[push][20:].any()   # found within ~10 samples
+    offered = np.asarray(offered)
+    line = (js.t >= onset - 2.45) & (js.t < onset - 0.55)     # waited past the margin
+    assert np.isin(js.t[line], offered).mean() > 0.5      # (borderline samples never wait)
+    margin = (js.t >= onset - 0.45) & (js.t < 14.0)
+    assert not np.isin(js.t[margin], offered).any()
+    assert p.counters.discarded_onsets < 0.6 * 200          # ~0.5 s at 200 Hz dropped
+
+
+def test_setup_change_makes_an_event_reaches_the_adapter_and_refuses_bad_times(seal, trocar):
+    p = ArmPipeline("PSM1", seal, PipelineConfig())
+    events = p.setup_change(None, {"note": "early"})
+    assert [(e.kind, e.detail["error"]) for e in events] == [("error", "setup")]
+    for i in range(50):
+        p.process(msg(trocar, i))
+    events = p.setup_change(None, {"pressure_mmhg": 20.0})
+    assert [e.kind for e in events] == ["setup_change"]
+    assert events[0].t == pytest.approx(trocar.t[49])
+    assert events[0].detail == {"arm": "PSM1", "pressure_mmhg": 20.0, "carry_over": True}
+    events = p.setup_change(float(trocar.t[30]))
+    assert events[0].t == pytest.approx(trocar.t[30])
+    assert p.backend.adapter.body_wall.starts == pytest.approx([trocar.t[30], trocar.t[49]])
+    events = p.setup_change(float("inf"))
+    assert [(e.kind, e.detail["error"]) for e in events] == [("error", "setup")]
+    # a stamp from another clock (here the epoch's) is refused; 5 s ahead is still taken
+    last = float(trocar.t[49])
+    events = p.setup_change(1.7e9)
+    assert [(e.kind, e.detail["error"]) for e in events] == [("error", "setup")]
+    assert "more than 5 s after the arm's latest sample" in events[0].detail["reason"]
+    assert p.backend.adapter.body_wall.starts == pytest.approx([trocar.t[30], last])
+    assert [e.kind for e in p.setup_change(last + 5.0)] == ["setup_change"]
+    status = p.status()
+    assert status["counters"]["setup_changes"] == 3
+    assert status["counters"]["error_kinds"] == {"setup": 3}
+    assert status["setup"]["t"] == pytest.approx(last + 5.0)
+    frozen = ArmPipeline("PSM1", seal, PipelineConfig(policy=PolicyConfig(name="frozen")))
+    frozen.process(msg(trocar, 0))
+    assert frozen.setup_change(None)[0].detail["carry_over"] is False

@@ -1,0 +1,216 @@
+"""Adaptation safety: long contacts and an adversarial publisher must not spoil the model.
+
+Each session is simulated ``trocar`` motion (seal and body wall at 12 mmHg) replayed through
+the daemon's own pipeline (``wrenchd.service.replay.loop.replay``, gated policy, adaptation rounds in
+replay's worker with their nets serving 1 s of sample time later, as in the daemon;
+deterministic): a contact-free calibration of ``CAL_S``, then from ``ATTACK_S``
+on something the adaptation must not learn from:
+
+* a **long contact**: the tip holds a grasped handle for 24 s (up to 8 N);
+* an **effort ramp**: the published efforts drift away from the truth by up to 0.15 N m on
+  yaw and pitch and 0.6 N on insertion over 20 s, then stay off (a false tip force of about
+  2 N through ``J^-T``; within every validation bound);
+* a **replayed trajectory**: the publisher switches to a recording of another arm set-up
+  (``deploy/models/trocar-heavy-seal.json``: stiffer seal, higher pressure, a payload);
+* a **second publisher** on the same key, interleaving that recording with the robot's
+  samples 2.5 ms apart (what any process on an open zenoh network can do; the router's ACL in
+  ``deploy/zenoh/router.json5`` is what forbids it).
+
+The model serving when the attack begins (``pre``) and at the end of the session (``post``)
+are scored on a clean held-out ``trocar`` session (another trajectory): free-motion force
+RMSE. **Bound**: ``post <= 1.2 * pre`` and ``post <= frozen`` (the net before any
+adaptation). Measured ``post / pre`` for seeds 3, 7, 11 (seed 7 in this test;
+``pytest -s`` prints them): effort ramp 0.94, 0.94, 0.89;
+replayed trajectory 1.00, 1.00, 1.06; second publisher 1.00 each; long contact with the
+gate's ``max_contact_s`` (60 s) above the contact's length 1.00 each. A model that had
+learned the ramp's offset would be at ~1.6 (its ~2 N on top of the ~1.8-2.4 N held-out
+error). The gate protects mostly by calling the attack a contact: after the replayed
+trajectory, the second publisher and the long contact, no swap or almost none happens.
+
+What these three do *not* show: an unprotected (``ungated``) adaptation stays within the
+bound on them too (seed 7, inline adaptation: 0.83, 0.67, 0.80): realistic-looking joint states mostly help a
+model calibrated for 20 s. A larger ramp does break it: three times the one above (about 6 N
+of false force), held for 20 s (a 65 s session, not in the suite), gave gated 1.56 and
+ungated 2.19 (inline adaptation). The gate cannot tell a slow drift of the published efforts from instrument
+wear, which it must follow; what keeps such a publisher out is the router's access control.
+
+**Was a failure, fixed**: with the gate's old ``max_contact_s`` of 15 s, a 24 s contact made
+the gate re-calibrate on the contact (taking it for a lasting set-up change) and the rest of
+the contact trained: measured ``post / pre`` 1.71 (seed 7: 23 % of the offered samples were
+in contact), 2.60 (seed 11: 18 %), 1.00 (seed 3). Now ``max_contact_s`` is 60 s and, after
+a re-calibration, nothing is trainable for another ``max_contact_s`` (a contact longer than
+that stays out of training too): 1.00 on seed 7, no contact sample offered.
+
+Every case also checks that each model swap carries ``val_before`` and ``val_after`` with
+``val_after < val_before``: a swap that raises validation error never happens.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from wrenchd.adapters.sim.scenarios import SCENARIOS, run_scenario
+from wrenchd.models.estimator.correction import Corr
+from wrenchd.models.estimator.estimator import TwoStepEstimator
+from wrenchd.models.estimator.pretrained import load_pretrained
+from wrenchd.models.physics.model import PhysicsModel
+from wrenchd.models.series import JointStates, Session
+from wrenchd.service.pipeline.arm import PipelineConfig, initial_corr
+from wrenchd.service.replay.loop import ReplayResult, replay
+
+CAL_S, ATTACK_S, DURATION_S, SEED = 20.0, 25.0, 50.0, 7
+BOUND = 1.2                            # post-attack held-out error / pre-attack, at most
+RAMP = np.array([0.15, 0.15, 0.6, 0.0, 0.0, 0.0])     # [N m, N m, N, N m, N m, N m]
+HEAVY = Path(__file__).resolve().parents[3] / "deploy" / "models" / "trocar-heavy-seal.json"
+
+
+@pytest.fixture(scope="module")
+def seal():
+    return load_pretrained("seal")
+
+
+@pytest.fixture(scope="module")
+def clean() -> Session:
+    """The held-out judge: contact-free trocar motion the sessions never saw."""
+    return run_scenario("trocar", 30.0, 99)
+
+
+@pytest.fixture(scope="module")
+def robot() -> Session:
+    return run_scenario("trocar", DURATION_S, SEED)
+
+
+@pytest.fixture(scope="module")
+def other_setup() -> Session:
+    """Another trajectory on another set-up: what the attacker replays."""
+    model = PhysicsModel.from_dict(json.loads(HEAVY.read_text()))
+    return run_scenario("trocar", DURATION_S, SEED + 1, model=model)
+
+
+def config(**gate) -> PipelineConfig:
+    return PipelineConfig(calibration_s=CAL_S, gate=gate)
+
+
+def run(session: Session, seal, cfg: PipelineConfig) -> tuple[ReplayResult, list]:
+    """Replay; also every swapped-in Corr with the time [s] of the sample it came after."""
+    swaps: list[tuple[float, object]] = []
+
+    def record_swaps(pipeline):
+        est = pipeline.estimator
+        swap = est.swap_correction_state
+
+        def recorded(state, kernel=None):
+            corr = Corr.from_state(est.correction.config, state)
+            swaps.append((float(est.t[est.cursor - 1]), corr))
+            swap(state, kernel)
+        est.swap_correction_state = recorded
+
+    result = replay(session, seal, cfg, step1="torch", pipeline_hook=record_swaps)
+    return result, swaps
+
+
+def serving_at(swaps: list, t: float, cfg: PipelineConfig):
+    corr = initial_corr(cfg.adaptation)
+    for when, c in swaps:
+        if when < t:
+            corr = c
+    return corr
+
+
+def held_out_error(seal, corr, clean: Session, cfg: PipelineConfig) -> float:
+    """Free-motion force RMSE [N] of step 1 + ``corr`` on the clean session."""
+    out = TwoStepEstimator(seal, corr, cfg.estimator).predict_batch(clean.joint_states)
+    err = out.wrench[:, :3] - clean.truth.external_wrench[:, :3]
+    return float(np.sqrt(np.mean(np.sum(err ** 2, axis=1))))
+
+
+def judge(name: str, session: Session, seal, clean: Session, cfg: PipelineConfig):
+    """Replay ``session``; the model before and after the attack on the clean session."""
+    result, swaps = run(session, seal, cfg)
+    models = [e.detail for e in result.events if e.kind == "model"]
+    assert models and len(models) == result.status["counters"]["swaps"]
+    for m in models:                                    # validated swaps only
+        assert np.isfinite(m["val_before"]) and np.isfinite(m["val_after"]), m
+        assert m["val_after"] < m["val_before"], m
+    pre = held_out_error(seal, serving_at(swaps, ATTACK_S, cfg), clean, cfg)
+    post = held_out_error(seal, serving_at(swaps, np.inf, cfg), clean, cfg)
+    frozen = held_out_error(seal, initial_corr(cfg.adaptation), clean, cfg)
+    print(f"{name}: held-out free-motion force RMSE before the attack {pre:.3f} N, after "
+          f"{post:.3f} N (ratio {post / pre:.2f}), frozen {frozen:.3f} N; "
+          f"{len(models)} swaps, {sum(w >= ATTACK_S for w, _ in swaps)} after the attack")
+    return result, pre, post, frozen
+
+
+def with_joint_states(session: Session, js: JointStates) -> Session:
+    return dataclasses.replace(session, joint_states=js, truth=None)
+
+
+def long_contact_session() -> Session:
+    effects = SCENARIOS["trocar"].effects(DURATION_S) + [{
+        "name": "external_contact", "params": {"episodes": [[ATTACK_S, ATTACK_S + 24.0]]}}]
+    model = PhysicsModel.from_dict({"description": "trocar with one 24 s contact",
+                                    "effects": effects})
+    return run_scenario("trocar", DURATION_S, SEED, model=model)
+
+
+def test_an_effort_ramp_does_not_spoil_the_model(robot, seal, clean):
+    js = robot.joint_states
+    ramp = np.clip((js.t - ATTACK_S) / 20.0, 0.0, 1.0)[:, None] * RAMP
+    attacked = with_joint_states(robot, dataclasses.replace(js, effort=js.effort + ramp))
+    result, pre, post, frozen = judge("effort ramp", attacked, seal, clean, config())
+    assert result.status["counters"]["errors"] == 0          # plausible: nothing refused
+    assert post <= BOUND * pre and post <= frozen
+
+
+def test_a_replayed_trajectory_does_not_spoil_the_model(robot, other_setup, seal, clean):
+    js, other = robot.joint_states, other_setup.joint_states
+    k = int(np.searchsorted(js.t, ATTACK_S))
+    switched = JointStates(js.t, np.r_[js.position[:k], other.position[k:]],
+                           np.r_[js.velocity[:k], other.velocity[k:]],
+                           np.r_[js.effort[:k], other.effort[k:]], js.names)
+    result, pre, post, frozen = judge("replayed trajectory", with_joint_states(robot, switched),
+                                      seal, clean, config())
+    assert result.status["counters"]["errors"] == 0
+    assert post <= BOUND * pre and post <= frozen
+
+
+def test_a_second_publisher_does_not_spoil_the_model(robot, other_setup, seal, clean):
+    js, other = robot.joint_states, other_setup.joint_states
+    k = int(np.searchsorted(js.t, ATTACK_S))
+    t = np.r_[js.t, other.t[k:] + 0.0025]
+    order = np.argsort(t, kind="stable")
+
+    def merged(a, b):
+        return np.r_[a, b[k:]][order]
+    both = JointStates(t[order], merged(js.position, other.position),
+                       merged(js.velocity, other.velocity), merged(js.effort, other.effort),
+                       js.names)
+    result, pre, post, frozen = judge("second publisher", with_joint_states(robot, both), seal,
+                                      clean, config())
+    assert result.status["counters"]["estimated"] == len(both)    # all of it got through
+    assert post <= BOUND * pre and post <= frozen
+
+
+def test_a_long_contact_within_max_contact_s_does_not_spoil_the_model(seal, clean):
+    session = long_contact_session()
+    cfg = config(max_contact_s=60.0)
+    result, pre, post, frozen = judge("24 s contact, max_contact_s 60", session, seal, clean,
+                                      cfg)
+    offered = np.searchsorted(session.joint_states.t, result.offered_t)
+    assert session.truth.in_contact[offered].mean() < 0.01
+    assert post <= BOUND * pre and post <= frozen
+
+
+def test_a_long_contact_with_the_default_gate_does_not_spoil_the_model(seal, clean):
+    session = long_contact_session()
+    result, pre, post, frozen = judge("24 s contact, default gate", session, seal, clean,
+                                      config())
+    offered = np.searchsorted(session.joint_states.t, result.offered_t)
+    print(f"  contact samples among those offered: "
+          f"{session.truth.in_contact[offered].mean():.1%}")
+    assert post <= BOUND * pre and post <= frozen
