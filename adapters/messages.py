@@ -20,13 +20,13 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass
 from typing import Any, Literal
 
 import numpy as np
 import orjson
 
 from wrenchd.models.errors import ConfigError, DataError
+from wrenchd.models.series import JointSample
 
 Encoding = Literal["json", "cdr"]
 ENCODINGS: tuple[str, ...] = ("json", "cdr")
@@ -35,30 +35,6 @@ _SEC_LIMIT = 2 ** 31
 JOINT_STATE_TYPE = "sensor_msgs/msg/JointState"
 WRENCH_TYPE = "geometry_msgs/msg/WrenchStamped"
 _NUMPY = orjson.OPT_SERIALIZE_NUMPY
-
-
-@dataclass(frozen=True)
-class JointStateMsg:
-    """One decoded joint state.
-
-    Attributes:
-        stamp_ns: header stamp [ns].
-        frame_id: header frame.
-        name: joint names.
-        position, velocity, effort: (n,) float64 [rad; m], [rad/s; m/s], [N m; N].
-    """
-
-    stamp_ns: int
-    frame_id: str
-    name: tuple[str, ...]
-    position: np.ndarray
-    velocity: np.ndarray
-    effort: np.ndarray
-
-    @property
-    def t(self) -> float:
-        """Stamp [s]."""
-        return self.stamp_ns / _NS
 
 
 def _split_ns(stamp_ns: int) -> tuple[int, int]:
@@ -132,13 +108,13 @@ def _json_object(payload: bytes, what: str) -> dict[str, Any]:
     return message
 
 
-def _decode_json_joint_state(payload: bytes) -> JointStateMsg:
+def _decode_json_joint_state(payload: bytes) -> JointSample:
     message = _json_object(payload, "joint state")
     stamp_ns, frame = _header(message)
     names = message.get("name", [])
     if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
         raise DataError("field 'name' must be a list of strings")
-    return JointStateMsg(stamp_ns, frame, tuple(names), *_arrays(
+    return JointSample(stamp_ns, frame, tuple(names), *_arrays(
         _vector(message, "position"), _vector(message, "velocity"), _vector(message, "effort")))
 
 
@@ -235,12 +211,12 @@ def _cdr_joint_state(stamp_ns: int, frame_id: str, names, position, velocity, ef
     return bytes(c.store.serialize_cdr(msg, JOINT_STATE_TYPE))
 
 
-def _decode_cdr_joint_state(payload: bytes) -> JointStateMsg:
+def _decode_cdr_joint_state(payload: bytes) -> JointSample:
     msg = _Cdr.get().deserialize(payload, JOINT_STATE_TYPE)
     stamp = msg.header.stamp
     if not 0 <= stamp.nanosec < _NS:
         raise DataError(f"header.stamp.nanosec out of range: {stamp.nanosec}")
-    return JointStateMsg(stamp.sec * _NS + stamp.nanosec, msg.header.frame_id, tuple(msg.name),
+    return JointSample(stamp.sec * _NS + stamp.nanosec, msg.header.frame_id, tuple(msg.name),
                          np.array(msg.position, dtype=np.float64),
                          np.array(msg.velocity, dtype=np.float64),
                          np.array(msg.effort, dtype=np.float64))
@@ -284,7 +260,7 @@ def encode_joint_state(encoding: str, stamp_ns: int, names, position, velocity, 
     return _cdr_joint_state(stamp_ns, frame_id, names, position, velocity, effort)
 
 
-def decode_joint_state(encoding: str, payload: bytes) -> JointStateMsg:
+def decode_joint_state(encoding: str, payload: bytes) -> JointSample:
     """Decode and check a joint state: equal, non-zero lengths (names may be empty).
 
     Raises:

@@ -34,6 +34,30 @@ def _as_matrix(name: str, value: Any, n: int, width: int) -> np.ndarray:
 
 
 @dataclass(frozen=True)
+class JointSample:
+    """One joint state, as it arrives from a robot: the pipeline's input.
+
+    Attributes:
+        stamp_ns: header stamp [ns].
+        frame_id: header frame.
+        name: joint names.
+        position, velocity, effort: (n,) float64 [rad; m], [rad/s; m/s], [N m; N].
+    """
+
+    stamp_ns: int
+    frame_id: str
+    name: tuple[str, ...]
+    position: np.ndarray
+    velocity: np.ndarray
+    effort: np.ndarray
+
+    @property
+    def t(self) -> float:
+        """Stamp [s]."""
+        return self.stamp_ns / 1e9
+
+
+@dataclass(frozen=True)
 class JointStates:
     """Measured joint states, one row per sample.
 

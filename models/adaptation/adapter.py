@@ -64,7 +64,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from wrenchd.models.body_wall_tracker import (WALL_JOINTS, BodyWallTracker, BodyWallTrackerConfig,
                                      wall_regressors)
 from wrenchd.models.estimator.corr_finetune import CorrFineTuner
-from wrenchd.models.estimator.correction import Corr, CorrConfig, CorrKernel
+from wrenchd.models.estimator.correction import Corr, CorrConfig, CorrKernel, zero_corr
 from wrenchd.models.series import N_JOINTS
 
 
@@ -205,76 +205,6 @@ def normalisation_of(free_space) -> dict[str, np.ndarray]:
             "in_std": free_space.in_std.double().numpy().copy(),
             "tau_mean": free_space.out_mean.double().numpy().copy(),
             "tau_std": free_space.out_std.double().numpy().copy()}
-
-
-def zero_corr(config: CorrConfig, windows: np.ndarray, step1: np.ndarray, seed: int = 0,
-              normalisation: dict[str, np.ndarray] | None = None) -> Corr:
-    """A ``Corr`` whose correction is exactly zero, normalised by ``normalisation`` or else
-    on the given samples."""
-    with torch.random.fork_rng(devices=[]):
-        torch.manual_seed(seed)
-        corr = Corr(config)
-    if normalisation is not None:
-        for name, value in normalisation.items():
-            getattr(corr, name).copy_(torch.as_tensor(np.asarray(value), dtype=torch.float32))
-    else:
-        corr.set_normalisation(windows.reshape(-1, windows.shape[-1]), step1)
-    last = corr.net[-1]
-    with torch.no_grad():
-        last.weight.zero_()
-        last.bias.zero_()
-    return corr.eval()
-
-
-def _lemire_draws(rng: np.random.Generator, calls: list[tuple[int, int]]) -> np.ndarray | None:
-    """The concatenated results of ``rng.integers(0, n, count)`` for ``(n, count)`` in
-    ``calls``, in one vectorised pass, leaving ``rng`` as those calls would; None (and ``rng``
-    untouched) where that is not certain: a rejection in Lemire's method or a bound <= 1.
-
-    NumPy's ``Generator.integers`` (int64, bound below 2**32) maps each 32-bit draw ``u`` of
-    the bit generator to ``(u * n) >> 32``, re-drawing when ``(u * n) mod 2**32`` falls below
-    ``2**32 mod n`` (Lemire 2019); a 64-bit output gives two 32-bit draws, low half first,
-    the high half kept in the state for the next draw. :data:`_LEMIRE_OK` checks once against
-    ``integers`` itself, so another NumPy falls back to the calls.
-    """
-    bounds = np.concatenate([np.full(count, n, np.uint64) for n, count in calls])
-    if len(bounds) == 0 or int(bounds.min()) <= 1 or int(bounds.max()) >= 2 ** 32:
-        return None
-    gen = rng.bit_generator
-    state = gen.state
-    has, buffered = int(state["has_uint32"]), int(state["uinteger"])
-    need = len(bounds) - has
-    raw = gen.random_raw((need + 1) // 2).astype(np.uint64)
-    halves = np.empty(2 * len(raw), np.uint64)
-    halves[0::2] = raw & np.uint64(0xFFFFFFFF)
-    halves[1::2] = raw >> np.uint64(32)
-    draws = np.concatenate([np.full(has, buffered, np.uint64), halves[:need]])
-    product = draws * bounds
-    if np.any(product & np.uint64(0xFFFFFFFF) < (np.uint64(2 ** 32) - bounds) % bounds):
-        gen.state = state                     # a re-draw: leave it to integers
-        return None
-    after = gen.state
-    after["has_uint32"], after["uinteger"] = (1, int(halves[need])) if need % 2 else (0, 0)
-    gen.state = after
-    return (product >> np.uint64(32)).astype(np.int64)
-
-
-def _lemire_check() -> bool:
-    """Whether :func:`_lemire_draws` gives what ``integers`` gives with this NumPy."""
-    for seed, pre in ((1, 0), (2, 1), (3, 3)):
-        a, b = np.random.default_rng(seed), np.random.default_rng(seed)
-        for r in (a, b):
-            r.integers(0, 7, pre)                      # odd: a half kept in the state
-        calls = [(3001, 77), (5999, 51)] * 5 + [(13, 3)]
-        got = _lemire_draws(b, calls)
-        want = np.concatenate([a.integers(0, n, count) for n, count in calls])
-        if got is None or not np.array_equal(got, want) or \
-                not np.array_equal(a.integers(0, 2 ** 31, 5), b.integers(0, 2 ** 31, 5)):
-            return False
-    return True
-
-
-_LEMIRE_OK: bool | None = None        # _lemire_check(), run on first use
 
 
 def _rmse_mean(pred: np.ndarray, target: np.ndarray) -> float:
@@ -486,13 +416,10 @@ class Adapter:
         n_recent = min(n_recent, n) if self.recent.n else 0
         return n_recent, (n - n_recent if self.reservoir.n else 0)
 
-    def _batch(self, n: int, drawn: tuple[np.ndarray, np.ndarray] | None = None
-               ) -> tuple[np.ndarray, np.ndarray]:
+    def _batch(self, n: int) -> tuple[np.ndarray, np.ndarray]:
         """A mini-batch of ``n`` rows' (network input, target), drawn ``recent_fraction``
         from the recent ring, the rest from the reservoir, from the rings' normalised rows
-        (:meth:`_Ring.normalise` first); the arrays are reused by the next call. ``drawn``:
-        the row indices in the recent ring and the reservoir, drawn beforehand from
-        ``self._rng`` exactly as here."""
+        (:meth:`_Ring.normalise` first); the arrays are reused by the next call."""
         n_recent, n_old = self._batch_split(n)
         size = n_recent + n_old
         width = (self.recent.inp.shape[1], self.recent.target.shape[1])
@@ -501,29 +428,14 @@ class Adapter:
                                np.empty((size, width[1]), np.float32))
         inp, target = self._batch_buf
         if n_recent:
-            idx = drawn[0] if drawn else self._rng.integers(0, self.recent.n, n_recent)
+            idx = self._rng.integers(0, self.recent.n, n_recent)
             self.recent.inp.take(idx, 0, inp[:n_recent])
             self.recent.target.take(idx, 0, target[:n_recent])
         if n_old:
-            idx = drawn[1] if drawn else self._rng.integers(0, self.reservoir.n, n_old)
+            idx = self._rng.integers(0, self.reservoir.n, n_old)
             self.reservoir.inp.take(idx, 0, inp[n_recent:])
             self.reservoir.target.take(idx, 0, target[n_recent:])
         return inp, target
-
-    def _round_draws(self, n: int, steps: int) -> list | None:
-        """The row indices of ``steps`` mini-batches of ``n`` rows, drawn at once from
-        ``self._rng`` as ``steps`` calls of :meth:`_batch` would draw them; None if not
-        possible (see :func:`_lemire_draws`)."""
-        global _LEMIRE_OK
-        if _LEMIRE_OK is None:
-            _LEMIRE_OK = _lemire_check()
-        n_recent, n_old = self._batch_split(n)
-        calls = [c for c in ((self.recent.n, n_recent), (self.reservoir.n, n_old)) if c[1]]
-        flat = _lemire_draws(self._rng, calls * steps) if _LEMIRE_OK and calls else None
-        if flat is None:
-            return None
-        per_step = flat.reshape(steps, n_recent + n_old)
-        return [(row[:n_recent], row[n_recent:]) for row in per_step]
 
     def _round_scaling(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """:meth:`_scaling` of the serving net, the same object while its values are (the
@@ -577,9 +489,8 @@ class Adapter:
             order = self._holdout.order()
             h_inp, h_target = self._holdout.inp[order], self._holdout.target[order]
             before = _rmse_mean(tuner.forward(h_inp), h_target)
-        draws = self._round_draws(c.batch_size, c.round_steps) or [None] * c.round_steps
-        for drawn in draws:
-            tuner.step(*self._batch(c.batch_size, drawn), with_loss=False)
+        for _ in range(c.round_steps):
+            tuner.step(*self._batch(c.batch_size), with_loss=False)
         if c.refit_shrink > 0:
             self._refit_output(tuner)
         self.rounds += 1

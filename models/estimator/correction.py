@@ -113,6 +113,30 @@ class Corr(nn.Module):
         return CorrKernel(self, np.dtype(dtype))
 
 
+def zero_corr(config: CorrConfig, windows: np.ndarray | None = None,
+              step1: np.ndarray | None = None, seed: int = 0,
+              normalisation: dict[str, np.ndarray] | None = None) -> Corr:
+    """A ``Corr`` whose correction is exactly zero (its output layer zeroed), in eval mode.
+
+    Its normalisation is ``normalisation`` (arrays named as the buffers), else fitted on
+    ``windows`` (B, W, 12) and ``step1`` (B, 6) torques, else the identity. The hidden layers
+    are initialised from ``seed`` without touching torch's global generator.
+    """
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(seed)
+        corr = Corr(config)
+    if normalisation is not None:
+        for name, value in normalisation.items():
+            getattr(corr, name).copy_(torch.as_tensor(np.asarray(value), dtype=torch.float32))
+    elif windows is not None and step1 is not None:
+        corr.set_normalisation(windows.reshape(-1, windows.shape[-1]), step1)
+    last = corr.net[-1]
+    with torch.no_grad():
+        last.weight.zero_()
+        last.bias.zero_()
+    return corr.eval()
+
+
 class CorrKernel:
     """Eval-mode :class:`Corr` on NumPy, normalisation folded into the weights."""
 

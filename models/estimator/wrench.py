@@ -129,6 +129,32 @@ class WrenchMap:
             return np.zeros((0, N_JOINTS))
         return self._solve(self.kinematics.jacobian(q, frame="hybrid"), tau_ext)
 
+    def gains(self, q: np.ndarray) -> np.ndarray:
+        """(N, 6) positions -> (N, 6, 6) per-sample linear maps from external torque to
+        wrench, ``w = G @ tau_ext``: what :meth:`wrench` applies, each sample on its own."""
+        q = np.asarray(q, np.float64)
+        if q.ndim != 2 or q.shape[1] != N_JOINTS:
+            raise DataError(f"expected (N, 6) positions, got {q.shape}")
+        if len(q) == 0:
+            return np.zeros((0, N_JOINTS, N_JOINTS))
+        jac = self.kinematics.jacobian(q, frame="hybrid")                    # (N, 6, 6)
+        # As wrench(): where ||J^-1||_F <= 1 / threshold (so s_min >= threshold) the map is
+        # J^-T exactly; elsewhere the damped one, whose columns are the wrenches of unit
+        # torques (the map is linear in the torque).
+        gains = np.empty_like(jac)
+        plain = np.zeros(len(q), dtype=bool)
+        ok = np.abs(np.linalg.det(jac)) > 0.0
+        if ok.any():
+            inv = np.linalg.inv(jac[ok])
+            gains[ok] = inv.transpose(0, 2, 1)
+            plain[ok] = np.einsum("nij,nij->n", inv, inv) <= self._plain_bound2
+        damped = ~plain
+        if damped.any():
+            unit = damped_wrench(jac[damped][:, None], np.eye(N_JOINTS), self.config.threshold,
+                                 self.config.max_damping)
+            gains[damped] = unit.transpose(0, 2, 1)
+        return np.ascontiguousarray(gains)
+
     def _solve(self, jacobian: np.ndarray, tau_ext: np.ndarray) -> np.ndarray:
         return damped_wrench(jacobian, tau_ext, self.config.threshold, self.config.max_damping)
 

@@ -36,235 +36,22 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass, field
-from typing import Any, Literal, Protocol
+from typing import Any
 
 import numpy as np
-import torch
-from pydantic import BaseModel, ConfigDict, Field
 
-from wrenchd.adapters.messages import JointStateMsg
-from wrenchd.models.drift_detector import DriftConfig, ResidualDriftDetector
+from wrenchd.models.adaptation.adapter import normalisation_of
+from wrenchd.models.drift_detector import ResidualDriftDetector
 from wrenchd.models.errors import ConfigError, DataError
-from wrenchd.models.estimator.correction import Corr, CorrConfig
-from wrenchd.models.estimator.estimator import EstimatorConfig, TwoStepEstimator
+from wrenchd.models.estimator.estimator import TwoStepEstimator
 from wrenchd.models.estimator.free_space import FreeSpaceModel
-from wrenchd.models.gate import FreeMotionGate, GateConfig, GateDecision
-from wrenchd.models.series import N_JOINTS
-from wrenchd.models.adaptation.adapter import Adapter, AdaptationConfig, RoundResult, normalisation_of
-
-POLICIES = ("gated", "ungated", "frozen", "drift-triggered", "periodic-reset")
-
-
-class ValidationConfig(BaseModel):
-    """What a joint state must satisfy to be estimated."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-    max_abs_position: tuple[float, ...] = Field(
-        default=(3.2, 3.2, 0.5, 5.0, 3.2, 3.2),
-        description="|q| bound per joint [rad; m on insertion]; beyond is refused")
-    max_abs_velocity: tuple[float, ...] = Field(
-        default=(10.0, 10.0, 2.0, 20.0, 20.0, 20.0), description="|dq| bound [rad/s; m/s]")
-    max_abs_effort: tuple[float, ...] = Field(
-        default=(50.0, 50.0, 200.0, 10.0, 10.0, 10.0), description="|effort| bound [N m; N]")
-    resync_after: int = Field(
-        default=40, ge=1,
-        description="this many consecutive samples stamped before the last accepted one mean "
-                    "the publisher's clock restarted (or one stamp came from the far future): "
-                    "accept the new timeline ('clock_reset' event) instead of refusing forever")
-    setup_ahead_s: float = Field(
-        default=5.0, ge=0.0,
-        description="a set-up change notice stamped further than this after the arm's latest "
-                    "sample is refused: its clock is not the robot's (a wall-clock stamp on a "
-                    "robot stamping from its start would keep adaptation eager for ever) [s]")
-
-
-class PolicyConfig(BaseModel):
-    """Which samples reach the adaptation, and when it may run."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-    name: Literal["gated", "ungated", "frozen", "drift-triggered", "periodic-reset"] = "gated"
-    release_delay_s: float = Field(default=2.5, ge=0.0,
-                                   description="a free sample waits this long for a contact")
-    onset_margin_s: float = Field(
-        default=2.5, ge=0.0,
-        description="when a contact is found, the waiting samples from this long before the "
-                    "gate's onset on are dropped (the force builds up under the bound first: "
-                    "the gate finds some contacts 2.0-2.5 s after they start, measured on "
-                    "trocar-contact seeds 3-4); older ones go on waiting and are offered "
-                    "after the contact")
-    reset_every_s: float = Field(default=120.0, gt=0.0,
-                                 description="periodic-reset: back to the initial net [s]")
-
-
-class CalibrationGuardConfig(BaseModel):
-    """The check that the calibration is contact-free (see :class:`ArmPipeline`).
-
-    The step-1 residual (measured minus step-1 torque) does not change while the correction
-    net calibrates, and the step-1 model's validation RMSE says how large it is in free
-    motion; a contact adds ``J^T w`` on top. So a :class:`FreeMotionGate` on it, seeded with
-    ``scale_factor`` x that RMSE instead of a warm-up (a warm-up could itself be spent in
-    contact: ``trocar-contact`` seed 3 touches from 1.6 s to 4.9 s), can judge from the first
-    sample. It counts the samples it calls contact and warns (``action: warn``), or keeps
-    them out of training through the gated phase's delay line (``action: refuse``).
-    """
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-    enabled: bool = Field(default=True, description="judge the calibration's samples")
-    action: Literal["warn", "refuse"] = Field(
-        default="warn",
-        description="warn: every calibration sample trains as before, the guard only counts "
-                    "and warns; refuse: what the guard calls contact does not train (no "
-                    "contact trained on trocar-contact, but a calibration 0.02-0.25 N worse on "
-                    "contact-free ones: see the README); refuse also publishes the guard's "
-                    "free flag during the calibration (warn: all free, as before)")
-    residual_scale: tuple[float, ...] | None = Field(
-        default=None,
-        description="free-motion RMS of the step-1 residual per joint [N m; N on insertion]; "
-                    "None: the step-1 checkpoint's validation RMSE (no guard when unknown)")
-    scale_factor: float = Field(
-        default=2.0, gt=0.0,
-        description="the guard starts from this x residual_scale (a set-up adds residual the "
-                    "step-1 validation did not have; measured on insufflation-change seeds "
-                    "3-6, contact-free: 1.0 called 67-85 % of the samples free, 2.0 80-96 %)")
-    borderline_trains: bool = Field(
-        default=True,
-        description="refuse: a sample the guard calls free but over the gate's train_sigma "
-                    "trains all the same (the calibration is there to learn the residual the "
-                    "step-1 model leaves, its largest parts included)")
-    warn_fraction: float = Field(
-        default=0.3, ge=0.0, le=1.0,
-        description="a calibration whose samples the guard called contact more than this "
-                    "fraction ends with a 'calibration_contaminated' event")
-
-
-class PipelineConfig(BaseModel):
-    """Everything one arm's pipeline needs besides its networks."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-    estimator: EstimatorConfig = Field(default_factory=EstimatorConfig)
-    validation: ValidationConfig = Field(default_factory=ValidationConfig)
-    gate: GateConfig = Field(default_factory=GateConfig)
-    drift: DriftConfig = Field(default_factory=DriftConfig)
-    adaptation: AdaptationConfig = Field(default_factory=AdaptationConfig)
-    policy: PolicyConfig = Field(default_factory=PolicyConfig)
-    calibration_s: float = Field(default=60.0, ge=0.0,
-                                 description="contact-free calibration at the start [s]")
-    calibration_guard: CalibrationGuardConfig = Field(default_factory=CalibrationGuardConfig)
-
-
-@dataclass(frozen=True)
-class Event:
-    """Something worth telling subscribers and the log: ``kind`` and JSON-able ``detail``."""
-
-    t: float
-    kind: str       # error | gap | contact_start | contact_end | drift | model | round | ...
-    detail: dict[str, Any]
-
-    def to_json(self) -> dict[str, Any]:
-        return {"t": self.t, "kind": self.kind, **self.detail}
-
-
-@dataclass(frozen=True)
-class Estimate:
-    """One sample's outputs (arrays (6,) as in :class:`EstimatorOutput`)."""
-
-    index: int
-    stamp_ns: int
-    t: float
-    position: np.ndarray
-    velocity: np.ndarray
-    effort: np.ndarray
-    wrench: np.ndarray
-    predicted_torque: np.ndarray
-    external_torque: np.ndarray
-    free: bool
-    score: float
-    model_version: int
-    restarted: bool
-
-    def __init__(self, index: int, stamp_ns: int, t: float, position: np.ndarray,
-                 velocity: np.ndarray, effort: np.ndarray, wrench: np.ndarray,
-                 predicted_torque: np.ndarray, external_torque: np.ndarray, free: bool,
-                 score: float, model_version: int, restarted: bool) -> None:
-        # One per sample: a dict update instead of the generated frozen __init__'s
-        # object.__setattr__ per field (2-3 us less a sample); immutable all the same.
-        self.__dict__.update(
-            index=index, stamp_ns=stamp_ns, t=t, position=position, velocity=velocity,
-            effort=effort, wrench=wrench, predicted_torque=predicted_torque,
-            external_torque=external_torque, free=free, score=score,
-            model_version=model_version, restarted=restarted)
-
-
-@dataclass
-class Counters:
-    received: int = 0
-    estimated: int = 0
-    errors: int = 0
-    gaps: int = 0
-    dropped: int = 0          # set by the daemon (ring buffer overflow)
-    offered: int = 0          # samples given to the adaptation
-    discarded_onsets: int = 0  # free-looking samples dropped because a contact began
-    calibration_samples: int = 0   # samples estimated during the calibration
-    calibration_contact: int = 0   # of those, the calibration guard called contact
-    drifts: int = 0
-    setup_changes: int = 0     # announced set-up changes taken
-    rounds: int = 0
-    swaps: int = 0
-    error_kinds: dict[str, int] = field(default_factory=dict)
-
-
-class AdaptationBackend(Protocol):
-    """Where offered samples go and accepted models come from."""
-
-    def offer(self, windows: np.ndarray, step1: np.ndarray, measured: np.ndarray,
-              t: np.ndarray | None = None) -> None: ...
-    def drift(self, t: float) -> None: ...
-    def setup_change(self, t: float) -> None: ...
-    def tick(self, t: float) -> list[RoundResult]: ...
-    def reset(self, t: float) -> None: ...
-    def close(self) -> None: ...
-
-
-class InlineAdaptation:
-    """The :class:`Adapter` run synchronously in the pipeline's (simulated) time: replay."""
-
-    def __init__(self, config: AdaptationConfig,
-                 normalisation: dict[str, np.ndarray] | None = None) -> None:
-        self.config, self.normalisation = config, normalisation
-        self.adapter = Adapter(config, normalisation=normalisation)
-
-    def offer(self, windows, step1, measured, t=None) -> None:
-        self.adapter.add(windows, step1, measured, t)
-
-    def drift(self, t: float) -> None:
-        self.adapter.on_drift(t)
-
-    def setup_change(self, t: float) -> None:
-        self.adapter.on_setup_change(t)
-
-    def tick(self, t: float) -> list[RoundResult]:
-        result = self.adapter.round(t)
-        return [] if result is None else [result]
-
-    def reset(self, t: float) -> None:
-        self.adapter = Adapter(self.config, normalisation=self.normalisation)
-
-    def close(self) -> None:
-        pass
-
-
-def initial_corr(config: AdaptationConfig) -> Corr:
-    """The pipeline's starting ``Corr``: identity normalisation, output exactly zero."""
-    corr = Corr(CorrConfig(window=config.window, hidden_size=config.hidden_size))
-    with torch.no_grad():
-        corr.net[-1].weight.zero_()
-        corr.net[-1].bias.zero_()
-    return corr.eval()
+from wrenchd.models.gate import FreeMotionGate, GateDecision
+from wrenchd.models.series import N_JOINTS, JointSample
+from wrenchd.service.pipeline.adaptation import AdaptationBackend, InlineAdaptation, initial_corr
+from wrenchd.service.pipeline.config import PipelineConfig
+from wrenchd.service.pipeline.records import Counters, Estimate, Event
+from wrenchd.service.pipeline.validation import SampleValidator
+from wrenchd.models.adaptation.adapter import RoundResult
 
 
 class ArmPipeline:
@@ -300,10 +87,7 @@ class ArmPipeline:
         self._pending: deque[tuple[float, np.ndarray, np.ndarray, np.ndarray]] = deque()
         self._times: deque[float] = deque(maxlen=8192)   # times of the last estimated samples
         self._index = 0
-        self._lim = tuple(np.asarray(v, dtype=float) for v in (
-            c.validation.max_abs_position, c.validation.max_abs_velocity,
-            c.validation.max_abs_effort))
-        self._bounds = np.stack(self._lim)                      # (3, 6)
+        self.validator = SampleValidator(c.validation)
         self._adapt_until = -np.inf           # drift-triggered: adapt only after a drift
         self._next_reset: float | None = None
         self._calibration_end: float | None = None
@@ -337,27 +121,8 @@ class ArmPipeline:
         self.counters.received += 1
         return self._error(t, kind, reason)
 
-    def _validate(self, msg: JointStateMsg) -> str | None:
-        lengths = (len(msg.position), len(msg.velocity), len(msg.effort))
-        if lengths != (N_JOINTS,) * 3:
-            return (f"position, velocity, effort have {lengths[0]}, {lengths[1]}, {lengths[2]} "
-                    f"values; the PSM pipeline needs {N_JOINTS} each")
-        values = (msg.position, msg.velocity, msg.effort)
-        # One comparison for the common case (NaN compares False, so it fails too); the
-        # reason is worked out only for a bad sample.
-        if (np.abs(values) <= self._bounds).all():
-            return None
-        for name, v, lim in zip(("position", "velocity", "effort"), values, self._lim):
-            if not np.isfinite(v).all():
-                return f"{name} contains NaN or Inf"
-            bad = np.abs(v) > lim
-            if bad.any():
-                j = int(np.argmax(bad))
-                return f"{name}[{j + 1}] = {v[j]:.6g} is beyond the bound {lim[j]:g}"
-        return "joint state out of bounds"                     # not reached
-
     # -- per sample ---------------------------------------------------------------------
-    def process(self, msg: JointStateMsg, checked: bool = False
+    def process(self, msg: JointSample, checked: bool = False
                 ) -> tuple[Estimate | None, list[Event]]:
         """Run one decoded joint state through the pipeline.
 
@@ -373,7 +138,7 @@ class ArmPipeline:
     #: the smallest backlog :meth:`process_many` estimates in one pass (below, one by one)
     BATCH_MIN = 6
 
-    def process_many(self, msgs: list[JointStateMsg]
+    def process_many(self, msgs: list[JointSample]
                      ) -> list[tuple[Estimate | None, list[Event]]]:
         """Consecutive joint states of this arm, as :meth:`process` would handle them one by
         one, with two differences: the estimator works a backlog off in one pass (the
@@ -386,7 +151,7 @@ class ArmPipeline:
         return ArmPipeline.process_many_joint([self], [msgs])[0]
 
     @staticmethod
-    def process_many_joint(pipelines: list[ArmPipeline], msgs: list[list[JointStateMsg]]
+    def process_many_joint(pipelines: list[ArmPipeline], msgs: list[list[JointSample]]
                            ) -> list[list[tuple[Estimate | None, list[Event]]]]:
         """Queued joint states of several arms whose estimators share their step-1 kernel
         (arms of one daemon, one model): what each arm's :meth:`process_many` returns, the
@@ -413,7 +178,7 @@ class ArmPipeline:
                 res[adm[-1][0]][1].extend(p._adapt(adm[-1][2]))
         return [res for res, _ in admitted]
 
-    def _admit_all(self, msgs: list[JointStateMsg]) -> tuple[list, list]:
+    def _admit_all(self, msgs: list[JointSample]) -> tuple[list, list]:
         """:meth:`_admit` in order: the results so far (refusals filled in, a placeholder for
         each admitted sample) and ``(position in results, msg, t, events, gap_s)`` of those
         to estimate."""
@@ -428,7 +193,7 @@ class ArmPipeline:
                 results.append((None, []))
         return results, admitted
 
-    def _finish_one(self, msg: JointStateMsg, t: float, events: list[Event],
+    def _finish_one(self, msg: JointSample, t: float, events: list[Event],
                     gap_s: float | None) -> tuple[Estimate | None, list[Event]]:
         try:
             out = self.estimator.step_one(t, msg.position, msg.velocity, msg.effort)
@@ -438,7 +203,7 @@ class ArmPipeline:
         events.extend(self._adapt(t))
         return est, events
 
-    def _admit(self, msg: JointStateMsg, checked: bool = False
+    def _admit(self, msg: JointSample, checked: bool = False
                ) -> tuple[float, list[Event], float | None] | list[Event]:
         """Validation (unless ``checked``) and stamp order: ``(t, events, gap_s)`` of a sample
         to estimate (``gap_s`` the time since the last one when it is a gap, else None), or the
@@ -447,7 +212,7 @@ class ArmPipeline:
         t = msg.stamp_ns / 1e9
         events: list[Event] = []
         if not checked:
-            reason = self._validate(msg)
+            reason = self.validator.reason(msg)
             if reason is not None:
                 return [self._error(t, "invalid", reason)]
         last = self._last_ns
@@ -467,7 +232,7 @@ class ArmPipeline:
         self._last_ns = msg.stamp_ns
         return t, events, gap_s
 
-    def _after(self, msg: JointStateMsg, t: float, out, events: list[Event],
+    def _after(self, msg: JointSample, t: float, out, events: list[Event],
                gap_s: float | None) -> tuple[Estimate | None, list[Event]]:
         """Everything after the estimator for one sample: gate, drift, offer (not adaptation)."""
         if events and events[-1].kind == "clock_reset":

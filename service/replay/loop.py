@@ -7,7 +7,7 @@ simulated time; the session's bounds are checked in one vectorised pass first, a
 (``checked=True``; the others it refuses as usual). The adaptation runs in a forked worker by default
 (:class:`~wrenchd.service.replay.worker.WorkerAdaptation`: a round's net serves ``result_delay_s``
 of sample time after the round fell due, as in the daemon) or inline
-(:class:`~wrenchd.service.pipeline.arm.InlineAdaptation`: a round runs at the sample at which it falls
+(:class:`~wrenchd.service.pipeline.adaptation.InlineAdaptation`: a round runs at the sample at which it falls
 due and its model is used from the next sample on); either way the outcome depends only on
 the session, the config, the seed and the delay.
 
@@ -39,10 +39,10 @@ from wrenchd.models.errors import ConfigError
 from wrenchd.models.estimator.estimator import EstimatorOutput, TwoStepEstimator
 from wrenchd.models.estimator.features import segment_starts
 from wrenchd.models.estimator.free_space import FreeSpaceModel
-from wrenchd.models.estimator.wrench import damped_wrench
 from wrenchd.models.series import N_JOINTS, Session
 from wrenchd.models.adaptation.adapter import normalisation_of
-from wrenchd.service.pipeline.arm import ArmPipeline, Event, PipelineConfig
+from wrenchd.service.pipeline import ArmPipeline, Event, PipelineConfig
+from wrenchd.service.pipeline.validation import accepted_indices
 from wrenchd.service.replay.source import joint_state_messages
 from wrenchd.service.replay.worker import WorkerAdaptation
 
@@ -184,32 +184,8 @@ class BatchedEstimator(TwoStepEstimator):
         while self._gain_ready < stop:
             a = self._gain_ready
             b = min(self._n, a + GAIN_CHUNK)
-            self.gain[a:b] = self._wrench_gains(self.features[a:b, :N_JOINTS])
+            self.gain[a:b] = self.wrench_map.gains(self.features[a:b, :N_JOINTS])
             self._gain_ready = b
-
-    def _wrench_gains(self, q: np.ndarray) -> np.ndarray:
-        """Per sample of ``q`` (M, 6), the linear map external torque -> wrench of the
-        damped ``J^-T`` (each sample's on its own: the same in any chunks)."""
-        if len(q) == 0:
-            return np.zeros((0, N_JOINTS, N_JOINTS))
-        jac = self.wrench_map.kinematics.jacobian(q, frame="hybrid")         # (N, 6, 6)
-        cfg = self.wrench_map.config
-        # As WrenchMap.wrench: where ||J^-1||_F <= 1 / threshold (so s_min >= threshold) the
-        # map is J^-T exactly; elsewhere the damped one, whose columns are the wrenches of unit
-        # torques (the map is linear in the torque).
-        gains = np.empty_like(jac)
-        plain = np.zeros(len(q), dtype=bool)
-        ok = np.abs(np.linalg.det(jac)) > 0.0
-        if ok.any():
-            inv = np.linalg.inv(jac[ok])
-            gains[ok] = inv.transpose(0, 2, 1)
-            plain[ok] = np.einsum("nij,nij->n", inv, inv) <= 1.0 / cfg.threshold ** 2
-        damped = ~plain
-        if damped.any():
-            unit = damped_wrench(jac[damped][:, None], np.eye(N_JOINTS), cfg.threshold,
-                                 cfg.max_damping)
-            gains[damped] = unit.transpose(0, 2, 1)
-        return np.ascontiguousarray(gains)
 
     def _compute_block(self, i: int) -> None:
         w = self.correction.window
@@ -281,29 +257,6 @@ class ReplayResult:
     meta: dict[str, Any] = field(default_factory=dict)
 
 
-def _valid(pipeline: ArmPipeline, js) -> np.ndarray:
-    """(N,) bool: the samples within the bounds of the pipeline's validation
-    (``pipeline.config.validation``; six finite values each), vectorised."""
-    v = pipeline.config.validation
-    ok = np.ones(len(js), dtype=bool)
-    for values, lim in ((js.position, v.max_abs_position), (js.velocity, v.max_abs_velocity),
-                        (js.effort, v.max_abs_effort)):
-        if values.ndim != 2 or values.shape[1] != N_JOINTS:
-            return np.zeros(len(js), dtype=bool)       # process() refuses and says why
-        ok &= np.all(np.isfinite(values) & (np.abs(values) <= np.asarray(lim)), axis=1)
-    return ok
-
-
-def _accepted(pipeline: ArmPipeline, js, valid: np.ndarray | None = None) -> np.ndarray:
-    """Indices of the samples the pipeline will estimate: within the bounds of its validation
-    (``valid``, see :func:`_valid`) and strictly increasing stamps, vectorised."""
-    keep = np.flatnonzero(_valid(pipeline, js) if valid is None else valid)
-    stamps = np.rint(js.t[keep] * 1e9).astype(np.int64)
-    # JointStates are strictly increasing, so only equal rounded stamps can be refused
-    dup = np.r_[False, np.diff(stamps) <= 0]
-    return keep[~dup]
-
-
 def replay(session: Session, free_space: FreeSpaceModel, config: PipelineConfig | None = None,
            *, policy: str = "", batched: bool = True, arm: str = "PSM1", block: int = 256,
            step1: str = "torch", adaptation: str = "worker", result_delay_s: float = 1.0,
@@ -358,10 +311,12 @@ def _run(pipeline: ArmPipeline, session: Session, msgs, config: PipelineConfig, 
     start = time.perf_counter()
     js = session.joint_states
     # checked in one pass: process() skips its per-sample check of these (not of the others)
-    checked = _valid(pipeline, js).tolist()
+    valid = pipeline.validator.within(js.position, js.velocity, js.effort)
+    checked = valid.tolist()
     if batched:
-        keep = _accepted(pipeline, js, np.asarray(checked, dtype=bool))
-        t = np.array([msgs[i].stamp_ns for i in keep], dtype=np.int64) / 1e9
+        stamps = np.array([m.stamp_ns for m in msgs], dtype=np.int64)
+        keep = accepted_indices(valid, stamps)
+        t = stamps[keep] / 1e9
         feats = np.concatenate([js.position[keep], js.velocity[keep]], axis=1)
         pipeline.estimator = BatchedEstimator(pipeline.estimator, t, feats, js.effort[keep],
                                               block, step1)

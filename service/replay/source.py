@@ -18,9 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from wrenchd.adapters.messages import JointStateMsg
 from wrenchd.models.errors import ConfigError
-from wrenchd.models.series import JointStates, Session
+from wrenchd.models.series import JointSample, JointStates, Session
 
 
 def load_session(spec: str) -> Session:
@@ -64,11 +63,11 @@ def stamps_ns(js: JointStates) -> np.ndarray:
     return np.rint(js.t * 1e9).astype(np.int64)
 
 
-def joint_state_messages(js: JointStates) -> list[JointStateMsg]:
+def joint_state_messages(js: JointStates) -> list[JointSample]:
     """The samples as the decoded messages the daemon's pipeline receives."""
     stamps = stamps_ns(js).tolist()
     names = tuple(js.names)
-    return [JointStateMsg(s, "", names, p, v, e)
+    return [JointSample(s, "", names, p, v, e)
             for s, p, v, e in zip(stamps, js.position, js.velocity, js.effort)]
 
 

@@ -1,6 +1,6 @@
 """Replay's adaptation in a worker process, in simulated time, deterministic.
 
-Inline adaptation (:class:`wrenchd.service.pipeline.arm.InlineAdaptation`) runs each round at the sample
+Inline adaptation (:class:`wrenchd.service.pipeline.adaptation.InlineAdaptation`) runs each round at the sample
 where it falls due, and the pipeline waits for it: the rounds, not the estimates, then set
 the pace of a replay. :class:`WorkerAdaptation` runs the very same :class:`Adapter` in a
 forked process, on the second core, while the pipeline goes on estimating; as in the daemon,

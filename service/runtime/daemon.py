@@ -50,7 +50,7 @@ from wrenchd.models.estimator.free_space import FreeSpaceModel
 from wrenchd.models.series import JOINT_NAMES
 from wrenchd.service.runtime.settings import ArmConfig, ServiceSettings
 from wrenchd.models.adaptation.adapter import normalisation_of
-from wrenchd.service.pipeline.arm import ArmPipeline, Estimate, Event
+from wrenchd.service.pipeline import ArmPipeline, Estimate, Event
 from wrenchd.service.runtime.log_process import LogWriterProcess
 from wrenchd.service.runtime.scheduling import enter_realtime, normal_scheduling, realtime, realtime_below
 from wrenchd.service.runtime.worker import ProcessAdaptation, WorkerProcess

@@ -25,7 +25,7 @@ from pydantic_settings import (BaseSettings, PydanticBaseSettingsSource, Setting
 from wrenchd.adapters.mcap_log import LogConfig
 from wrenchd.adapters.zenoh_io import ZenohConfig
 from wrenchd.models.errors import ConfigError
-from wrenchd.service.pipeline.arm import PipelineConfig
+from wrenchd.service.pipeline import PipelineConfig
 from wrenchd.service.runtime.scheduling import AUTO_REALTIME_PRIORITY
 
 #: Loopback by default: nothing leaves the machine unless the user says so.

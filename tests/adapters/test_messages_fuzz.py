@@ -23,9 +23,10 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-from wrenchd.adapters.messages import JointStateMsg, decode_joint_state, decode_wrench, encode_joint_state, \
+from wrenchd.adapters.messages import decode_joint_state, decode_wrench, encode_joint_state, \
     encode_wrench
 from wrenchd.models.errors import DataError
+from wrenchd.models.series import JointSample
 
 FUZZ = settings(max_examples=150, deadline=None, database=None,
                 suppress_health_check=[HealthCheck.too_slow])
@@ -53,7 +54,7 @@ def _same(a, b) -> bool:
 
 def check_joint_state(msg) -> None:
     """What a pipeline relies on in a decoded joint state."""
-    assert isinstance(msg, JointStateMsg)
+    assert isinstance(msg, JointSample)
     assert type(msg.stamp_ns) is int and isinstance(msg.frame_id, str)
     assert all(isinstance(n, str) for n in msg.name)
     n = len(msg.position)

@@ -6,7 +6,7 @@ import numpy as np
 import torch
 
 from wrenchd.models.estimator.corr_finetune import CorrFineTuner
-from wrenchd.models.adaptation.adapter import AdaptationConfig, Adapter, _lemire_draws
+from wrenchd.models.adaptation.adapter import AdaptationConfig, Adapter
 
 
 def samples(n: int, seed: int = 0, gain: float = 0.3):
@@ -102,26 +102,6 @@ def test_rounds_train_on_the_buffer_rows_normalised_once():
     np.testing.assert_array_equal(target, want_target)
 
 
-def test_a_round_draws_its_batches_as_successive_integers_calls():
-    """All of a round's mini-batch indices in one vectorised pass: the numbers and the
-    generator's state after them are those of the successive ``integers`` calls; where
-    Lemire's method would re-draw, nothing is drawn (the round falls back to the calls)."""
-    for seed, pre in ((0, 0), (1, 1), (2, 5)):
-        a, b = np.random.default_rng(seed), np.random.default_rng(seed)
-        a.integers(0, 3, pre)
-        b.integers(0, 3, pre)
-        calls = [(2999, 77), (6000, 51)] * 40
-        got = _lemire_draws(b, calls)
-        want = np.concatenate([a.integers(0, n, k) for n, k in calls])
-        np.testing.assert_array_equal(got, want)
-        np.testing.assert_array_equal(a.integers(0, 10 ** 6, 7), b.integers(0, 10 ** 6, 7))
-    rng = np.random.default_rng(3)
-    state = rng.bit_generator.state
-    assert _lemire_draws(rng, [(2 ** 31 + 1, 64)]) is None   # ~half of the draws re-draw
-    assert rng.bit_generator.state == state
-    assert _lemire_draws(rng, [(1, 4)]) is None               # integers draws nothing there
-
-
 def _stepped_adapter(refit_shrink: float) -> Adapter:
     """An adapter trained on one regime, then offered samples after a step change of the
     measured torques (a drift): the recent ring holds only the new regime, the reservoir
@@ -166,8 +146,8 @@ def test_refit_off_is_adam_alone_to_the_bit():
     for ring in (twin.recent, twin.reservoir, twin._holdout):
         ring.normalise(scaling, twin._net_rows)
     tuner = CorrFineTuner(twin.corr.net, lr=cfg.lr, weight_decay=cfg.weight_decay)
-    for drawn in twin._round_draws(cfg.batch_size, cfg.round_steps):
-        tuner.step(*twin._batch(cfg.batch_size, drawn), with_loss=False)
+    for _ in range(cfg.round_steps):
+        tuner.step(*twin._batch(cfg.batch_size), with_loss=False)
     want = copy.deepcopy(twin.corr)
     tuner.write_to(want.net)
     for k, v in want.state_dict().items():

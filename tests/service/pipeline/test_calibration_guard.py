@@ -17,7 +17,7 @@ import pytest
 from wrenchd.adapters.sim.scenarios import run_scenario
 from wrenchd.models.estimator.pretrained import load_pretrained
 from wrenchd.models.errors import ConfigError
-from wrenchd.service.pipeline.arm import ArmPipeline, CalibrationGuardConfig, PipelineConfig
+from wrenchd.service.pipeline import ArmPipeline, CalibrationGuardConfig, PipelineConfig
 from wrenchd.service.replay.loop import replay
 
 DURATION_S, CALIBRATION_S = 24.0, 20.0

@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from wrenchd.adapters.messages import JointStateMsg
+from wrenchd.models.series import JointSample
 from wrenchd.adapters.sim.scenarios import run_scenario
 from wrenchd.models.estimator.pretrained import load_pretrained
-from wrenchd.service.pipeline.arm import ArmPipeline, PipelineConfig, PolicyConfig
+from wrenchd.service.pipeline import ArmPipeline, PipelineConfig, PolicyConfig
 
 
 @pytest.fixture(scope="module")
@@ -24,7 +24,7 @@ def msg(js, i, t=None, **change):
               "effort": js.effort[i].copy()}
     fields.update(change)
     stamp = int(round((js.t[i] if t is None else t) * 1e9))
-    return JointStateMsg(stamp, "", (), **fields)
+    return JointSample(stamp, "", (), **fields)
 
 
 def test_bad_samples_are_counted_events_and_never_estimated(seal, trocar):
@@ -37,7 +37,7 @@ def test_bad_samples_are_counted_events_and_never_estimated(seal, trocar):
     bad = [
         (msg(trocar, 20, velocity=nan_velocity), "invalid"),
         (msg(trocar, 20, effort=np.full(6, 1e6)), "invalid"),
-        (JointStateMsg(int(trocar.t[20] * 1e9), "", (), np.zeros(7), np.zeros(7), np.zeros(7)),
+        (JointSample(int(trocar.t[20] * 1e9), "", (), np.zeros(7), np.zeros(7), np.zeros(7)),
          "invalid"),
         (msg(trocar, 19), "duplicate"),
         (msg(trocar, 10), "time_backwards"),
@@ -62,7 +62,7 @@ def test_a_gap_restarts_the_recurrent_state(seal, trocar):
 
 
 def test_a_model_swap_keeps_the_recurrent_state(seal, trocar):
-    from wrenchd.service.pipeline.arm import initial_corr
+    from wrenchd.service.pipeline import initial_corr
 
     p = ArmPipeline("PSM1", seal, PipelineConfig(policy=PolicyConfig(name="frozen")))
     ref = ArmPipeline("PSM1", seal, PipelineConfig(policy=PolicyConfig(name="frozen")))

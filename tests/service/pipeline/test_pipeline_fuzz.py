@@ -25,11 +25,12 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from wrenchd.adapters.messages import JointStateMsg, decode_joint_state
+from wrenchd.adapters.messages import decode_joint_state
+from wrenchd.models.series import JointSample
 from wrenchd.models.errors import DataError
 from wrenchd.models.estimator.pretrained import load_pretrained
 from wrenchd.models.gate import GateConfig
-from wrenchd.service.pipeline.arm import ArmPipeline, PipelineConfig, PolicyConfig
+from wrenchd.service.pipeline import ArmPipeline, PipelineConfig, PolicyConfig
 
 NS = 1_000_000_000
 STEP_NS = 5_000_000                  # 200 Hz
@@ -75,8 +76,8 @@ def good_state(stamp_ns: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return q, dq, effort
 
 
-def message(stamp_ns: int, q, dq, effort) -> JointStateMsg:
-    return JointStateMsg(stamp_ns, "psm_base", (), np.asarray(q, dtype=float),
+def message(stamp_ns: int, q, dq, effort) -> JointSample:
+    return JointSample(stamp_ns, "psm_base", (), np.asarray(q, dtype=float),
                          np.asarray(dq, dtype=float), np.asarray(effort, dtype=float))
 
 

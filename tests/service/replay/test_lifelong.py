@@ -63,7 +63,7 @@ import pytest
 
 from wrenchd.adapters.sim.scenarios import run_scenario
 from wrenchd.models.estimator.pretrained import load_pretrained
-from wrenchd.service.pipeline.arm import PipelineConfig, PolicyConfig
+from wrenchd.service.pipeline import PipelineConfig, PolicyConfig
 from wrenchd.service.replay.loop import replay
 from wrenchd.service.replay.metrics import recovery_levels
 

@@ -1,0 +1,115 @@
+"""The pipeline's settings: validation bounds, the adaptation policy, the calibration guard."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from wrenchd.models.adaptation.adapter import AdaptationConfig
+from wrenchd.models.drift_detector import DriftConfig
+from wrenchd.models.estimator.estimator import EstimatorConfig
+from wrenchd.models.gate import GateConfig
+
+POLICIES = ("gated", "ungated", "frozen", "drift-triggered", "periodic-reset")
+
+
+class ValidationConfig(BaseModel):
+    """What a joint state must satisfy to be estimated."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    max_abs_position: tuple[float, ...] = Field(
+        default=(3.2, 3.2, 0.5, 5.0, 3.2, 3.2),
+        description="|q| bound per joint [rad; m on insertion]; beyond is refused")
+    max_abs_velocity: tuple[float, ...] = Field(
+        default=(10.0, 10.0, 2.0, 20.0, 20.0, 20.0), description="|dq| bound [rad/s; m/s]")
+    max_abs_effort: tuple[float, ...] = Field(
+        default=(50.0, 50.0, 200.0, 10.0, 10.0, 10.0), description="|effort| bound [N m; N]")
+    resync_after: int = Field(
+        default=40, ge=1,
+        description="this many consecutive samples stamped before the last accepted one mean "
+                    "the publisher's clock restarted (or one stamp came from the far future): "
+                    "accept the new timeline ('clock_reset' event) instead of refusing forever")
+    setup_ahead_s: float = Field(
+        default=5.0, ge=0.0,
+        description="a set-up change notice stamped further than this after the arm's latest "
+                    "sample is refused: its clock is not the robot's (a wall-clock stamp on a "
+                    "robot stamping from its start would keep adaptation eager for ever) [s]")
+
+
+class PolicyConfig(BaseModel):
+    """Which samples reach the adaptation, and when it may run."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    name: Literal["gated", "ungated", "frozen", "drift-triggered", "periodic-reset"] = "gated"
+    release_delay_s: float = Field(default=2.5, ge=0.0,
+                                   description="a free sample waits this long for a contact")
+    onset_margin_s: float = Field(
+        default=2.5, ge=0.0,
+        description="when a contact is found, the waiting samples from this long before the "
+                    "gate's onset on are dropped (the force builds up under the bound first: "
+                    "the gate finds some contacts 2.0-2.5 s after they start, measured on "
+                    "trocar-contact seeds 3-4); older ones go on waiting and are offered "
+                    "after the contact")
+    reset_every_s: float = Field(default=120.0, gt=0.0,
+                                 description="periodic-reset: back to the initial net [s]")
+
+
+class CalibrationGuardConfig(BaseModel):
+    """The check that the calibration is contact-free (see :class:`ArmPipeline`).
+
+    The step-1 residual (measured minus step-1 torque) does not change while the correction
+    net calibrates, and the step-1 model's validation RMSE says how large it is in free
+    motion; a contact adds ``J^T w`` on top. So a :class:`FreeMotionGate` on it, seeded with
+    ``scale_factor`` x that RMSE instead of a warm-up (a warm-up could itself be spent in
+    contact: ``trocar-contact`` seed 3 touches from 1.6 s to 4.9 s), can judge from the first
+    sample. It counts the samples it calls contact and warns (``action: warn``), or keeps
+    them out of training through the gated phase's delay line (``action: refuse``).
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    enabled: bool = Field(default=True, description="judge the calibration's samples")
+    action: Literal["warn", "refuse"] = Field(
+        default="warn",
+        description="warn: every calibration sample trains as before, the guard only counts "
+                    "and warns; refuse: what the guard calls contact does not train (no "
+                    "contact trained on trocar-contact, but a calibration 0.02-0.25 N worse on "
+                    "contact-free ones: see the README); refuse also publishes the guard's "
+                    "free flag during the calibration (warn: all free, as before)")
+    residual_scale: tuple[float, ...] | None = Field(
+        default=None,
+        description="free-motion RMS of the step-1 residual per joint [N m; N on insertion]; "
+                    "None: the step-1 checkpoint's validation RMSE (no guard when unknown)")
+    scale_factor: float = Field(
+        default=2.0, gt=0.0,
+        description="the guard starts from this x residual_scale (a set-up adds residual the "
+                    "step-1 validation did not have; measured on insufflation-change seeds "
+                    "3-6, contact-free: 1.0 called 67-85 % of the samples free, 2.0 80-96 %)")
+    borderline_trains: bool = Field(
+        default=True,
+        description="refuse: a sample the guard calls free but over the gate's train_sigma "
+                    "trains all the same (the calibration is there to learn the residual the "
+                    "step-1 model leaves, its largest parts included)")
+    warn_fraction: float = Field(
+        default=0.3, ge=0.0, le=1.0,
+        description="a calibration whose samples the guard called contact more than this "
+                    "fraction ends with a 'calibration_contaminated' event")
+
+
+class PipelineConfig(BaseModel):
+    """Everything one arm's pipeline needs besides its networks."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    estimator: EstimatorConfig = Field(default_factory=EstimatorConfig)
+    validation: ValidationConfig = Field(default_factory=ValidationConfig)
+    gate: GateConfig = Field(default_factory=GateConfig)
+    drift: DriftConfig = Field(default_factory=DriftConfig)
+    adaptation: AdaptationConfig = Field(default_factory=AdaptationConfig)
+    policy: PolicyConfig = Field(default_factory=PolicyConfig)
+    calibration_s: float = Field(default=60.0, ge=0.0,
+                                 description="contact-free calibration at the start [s]")
+    calibration_guard: CalibrationGuardConfig = Field(default_factory=CalibrationGuardConfig)
