@@ -34,6 +34,7 @@ import numpy as np
 
 from wrenchd.adapters.messages import encode_joint_state
 from wrenchd.adapters.zenoh_io import ZenohConfig, open_session
+from wrenchd.service.provenance import load_average, steal_ticks, ticks_per_s
 from wrenchd.service.runtime.scheduling import enter_realtime, normal_scheduling, realtime_below
 
 STEAL_PERIOD_S = 0.1    # how often the hypervisor's steal counter is read while publishing
@@ -87,17 +88,6 @@ def _cpu_s(pid: int) -> float:
     except OSError:
         return float("nan")
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-
-
-def _steal_ticks() -> int | None:
-    """CPU time the hypervisor gave to others while this machine's CPUs wanted to run, summed
-    over all CPUs, in clock ticks (Linux /proc/stat ``steal``); None where unknown."""
-    try:
-        with open("/proc/stat") as f:
-            fields = f.readline().split()
-        return int(fields[8]) if fields[0] == "cpu" and len(fields) > 8 else None
-    except (OSError, ValueError):
-        return None
 
 
 def _stolen_windows(steal: list[tuple[float, int | None]]) -> list[tuple[float, float]]:
@@ -230,7 +220,7 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
                 cpu_at = {"daemon": _cpu_s(daemon.pid), "worker": sum(
                     _cpu_s(c) for c in _children(daemon.pid)), "wall": time.monotonic()}
             if (due - start) / 1e9 >= next_steal:
-                steal.append(((time.perf_counter_ns() - start) / 1e9, _steal_ticks()))
+                steal.append(((time.perf_counter_ns() - start) / 1e9, steal_ticks()))
                 next_steal += STEAL_PERIOD_S
             if (due - start) / 1e9 >= next_rss:
                 rss.append((next_rss, _rss_mb(daemon.pid)))
@@ -244,7 +234,7 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
         cpu = {"daemon": _cpu_s(daemon.pid),
                "worker": sum(_cpu_s(c) for c in _children(daemon.pid)),
                "wall": time.monotonic()}
-        steal.append(((time.perf_counter_ns() - start) / 1e9, _steal_ticks()))
+        steal.append(((time.perf_counter_ns() - start) / 1e9, steal_ticks()))
         time.sleep(2.0)                                     # the last wrenches come back
         gc.enable()
         for arm in arms if not floor else []:          # the floor answers no status
@@ -311,7 +301,7 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
         latencies.extend(lat)
     pooled = np.array(latencies) if latencies else np.array([np.nan])
     ticks = [(t, k) for t, k in steal if k is not None and t >= warmup_s]
-    hz = os.sysconf("SC_CLK_TCK")
+    hz = ticks_per_s()
     # The hypervisor of a shared VM stops its CPUs now and then (measured here: up to 0.4 s of
     # CPU time in one second); what arrives meanwhile waits, whatever the daemon does.
     hypervisor = {
@@ -332,7 +322,7 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
                                           / (cpu["wall"] - cpu_at["wall"]), 3),
              "worker_cpu_fraction": round((cpu["worker"] - cpu_at["worker"])
                                           / (cpu["wall"] - cpu_at["wall"]), 3),
-             "load_average_1min": round(os.getloadavg()[0], 2)}
+             "load_average_1min": (load_average() or [None])[0]}
     return {**memory, **usage, **hypervisor, "e2e_p50_us": float(np.percentile(pooled, 50)),
             "e2e_p99_us": float(np.percentile(pooled, 99)),
             # samples without a wrench back (the daemon's ring drops are among them)
