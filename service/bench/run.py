@@ -16,6 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
+from wrenchd.service.provenance import RunMeter, stamp
+
 
 def bench_inference(duration_s: float = 60.0, seed: int = 3, warmup: int = 500) -> dict:
     """Returns ``{"step_p50_us", "step_p99_us", "batch_samples_per_s", ...}``."""
@@ -60,7 +62,10 @@ def bench_inference(duration_s: float = 60.0, seed: int = 3, warmup: int = 500) 
 
 def run(kind: str, json_path: str | None, duration_s: float, arms: int = 1,
         rate_hz: float = 1000.0, pin: bool = False, realtime: int | str = "auto") -> int:
+    """Run the bench ``kind``, print its result as JSON (with its provenance) and write it to
+    ``json_path`` too when given."""
     os.environ.setdefault("OMP_NUM_THREADS", "1")
+    meter = RunMeter()
     if kind == "inference":
         result = bench_inference(duration_s=duration_s)
     elif kind == "arm":
@@ -71,15 +76,16 @@ def run(kind: str, json_path: str | None, duration_s: float, arms: int = 1,
         result = bench_service(n_arms=arms, rate_hz=rate_hz, duration_s=duration_s,
                                floor=kind == "floor", pin=pin, realtime=realtime)
     elif kind == "replay":
-        from wrenchd.service.cli.replay import run_replay_bench
+        from wrenchd.service.bench.replay import run_replay_bench
 
-        run_replay_bench(json_path, duration_s)        # prints and writes its JSON
-        return 0
+        result = run_replay_bench(duration_s)
     else:
         raise SystemExit(f"wrenchd bench: unknown benchmark {kind!r}")
+    stamp(result, run=meter)
     text = json.dumps(result, indent=2)
     print(text)
     if json_path:
+        Path(json_path).parent.mkdir(parents=True, exist_ok=True)
         Path(json_path).write_text(text + "\n")
     return 0
 
@@ -102,7 +108,7 @@ def bench_arm_thread(duration_s: float = 20.0) -> dict:
     from wrenchd.adapters.sim.scenarios import run_scenario
     from wrenchd.models.estimator.pretrained import load_pretrained
     from wrenchd.service.runtime.daemon import estimate_payload
-    from wrenchd.service.pipeline.arm import ArmPipeline, PipelineConfig, PolicyConfig
+    from wrenchd.service.pipeline import ArmPipeline, PipelineConfig, PolicyConfig
 
     js = run_scenario("trocar", duration_s, 1).joint_states
     payloads = [encode_joint_state("json", int(round(js.t[i] * 1e9)), js.names, js.position[i],

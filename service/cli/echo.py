@@ -7,16 +7,12 @@ import json
 import threading
 import time
 
-import numpy as np
-
-from wrenchd.adapters.messages import decode_wrench
-from wrenchd.adapters.zenoh_io import ZenohConfig, open_session
-from wrenchd.models.errors import DataError
-
 DEFAULT_CONNECT = "tcp/127.0.0.1:7447"
 
 
 def echo(args: argparse.Namespace) -> int:
+    from wrenchd.adapters.zenoh_io import ZenohConfig, open_session
+
     base = f"{args.prefix}/{args.arm}"
     session = open_session(ZenohConfig(connect=args.connect or [DEFAULT_CONNECT]))
     try:
@@ -45,6 +41,11 @@ def _status(session, key: str, timeout: float) -> int:
 
 
 def _stream(session, base: str, args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from wrenchd.adapters.messages import decode_wrench
+    from wrenchd.models.errors import DataError
+
     done = threading.Event()
     seen = {"n": 0}
     lock = threading.Lock()
@@ -91,3 +92,18 @@ def _stream(session, base: str, args: argparse.Namespace) -> int:
             sub.undeclare()
     print(f"wrenchd echo: {min(seen['n'], args.count or seen['n'])} wrenches", flush=True)
     return 0 if seen["n"] else 1
+
+
+def register(sub) -> None:
+    p = sub.add_parser("echo", help="subscribe to a daemon and print live estimates")
+    p.add_argument("--arm", default="PSM1")
+    p.add_argument("--prefix", default="dvrk")
+    p.add_argument("--encoding", default="json", choices=["json", "cdr"])
+    p.add_argument("--connect", action="append", metavar="ENDPOINT",
+                   help=f"zenoh endpoint of the daemon (default {DEFAULT_CONNECT})")
+    p.add_argument("--count", type=int, default=None, help="stop after N wrenches")
+    p.add_argument("--every", type=int, default=20, help="print one wrench in N")
+    p.add_argument("--events", action="store_true", help="also print events")
+    p.add_argument("--status", action="store_true", help="query the status once and exit")
+    p.add_argument("--timeout", type=float, default=None, help="give up after [s]")
+    p.set_defaults(func=echo)

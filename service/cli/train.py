@@ -24,186 +24,19 @@ Relative paths (data, output, base checkpoint) are taken from the working direct
 Training runs on the CPU, or on a CUDA GPU when torch sees one (``--device`` overrides).
 The checkpoint carries the config, the format version, a description of the data and the
 validation score (the last ``val_fraction`` of every series, see
-:mod:`wrenchd.models.estimator.training`).
+:mod:`wrenchd.models.estimator.training`) and the provenance of the run.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import os
-import time
-import tomllib
-from pathlib import Path
-from typing import Any, Literal
-
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
-
-from wrenchd.models.errors import ConfigError
-
-#: Default recipe of each configuration.
-DEFAULT_RECIPES = {"base": "free-space", "troc": "troc", "corr": "corr", "xfer": "xfer"}
 
 
-class SimulatedData(BaseModel):
-    """A simulator scenario run as training data."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-    scenario: str = Field(description="scenario name (see `wrenchd simulate --help`)")
-    duration_s: float = Field(gt=0.0, description="simulated length [s]")
-    seed: int = Field(default=0, description="seed of the simulated session")
-
-
-class FileData(BaseModel):
-    """A recorded session: MCAP, or CSV in the WPI or the paper's layout."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-    path: str = Field(description="an .mcap or .csv file")
-    rate_hz: float = Field(default=200.0, gt=0.0, description="sample rate of a WPI CSV [Hz]")
-
-
-class TrainCommandConfig(BaseModel):
-    """What ``wrenchd train`` trains, on what, and where it writes the checkpoint."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-    configuration: Literal["base", "troc", "corr", "xfer"] = Field(
-        description="base/troc: step-1 networks; corr/xfer: step 2 on a base checkpoint")
-    data: list[SimulatedData | FileData] = Field(min_length=1, description="training series")
-    recipe: str | None = Field(default=None, description="recipe name; default per configuration")
-    overrides: dict[str, Any] = Field(default_factory=dict,
-                                      description="recipe fields replaced (e.g. epochs)")
-    seed: int = Field(default=0, description="seed of the training (overrides the recipe's)")
-    base_checkpoint: str | None = Field(
-        default=None, description="corr/xfer: step-1 checkpoint path or pretrained:<name>")
-    output: str = Field(description="checkpoint file to write (.pt)")
-    description: str = Field(default="", description="free text stored with the checkpoint")
-
-    @model_validator(mode="after")
-    def _base_for_step2(self):
-        if self.configuration in ("corr", "xfer") and not self.base_checkpoint:
-            raise ValueError(f"configuration {self.configuration!r} needs base_checkpoint")
-        if self.configuration in ("base", "troc") and self.base_checkpoint:
-            raise ValueError(f"configuration {self.configuration!r} takes no base_checkpoint")
-        return self
-
-    @property
-    def recipe_name(self) -> str:
-        return self.recipe or DEFAULT_RECIPES[self.configuration]
-
-
-def read_train_config(path: str | os.PathLike) -> TrainCommandConfig:
-    """Parse a TOML (``.toml``) or JSON config file.
-
-    Raises:
-        ConfigError: unreadable, not TOML/JSON, or invalid (the message names the field).
-    """
-    p = Path(path)
-    try:
-        text = p.read_text()
-    except OSError as exc:
-        raise ConfigError(f"{p}: cannot read the training config: {exc}") from exc
-    try:
-        raw = tomllib.loads(text) if p.suffix.lower() == ".toml" else json.loads(text)
-    except (tomllib.TOMLDecodeError, json.JSONDecodeError) as exc:
-        raise ConfigError(f"{p}: not valid {'TOML' if p.suffix == '.toml' else 'JSON'}: "
-                          f"{exc}") from exc
-    try:
-        return TrainCommandConfig(**raw)
-    except (ValidationError, TypeError) as exc:
-        raise ConfigError(f"{p}: invalid training config: {exc}") from exc
-
-
-def load_series(spec: SimulatedData | FileData):
-    """The joint states of one data entry, and its description for the checkpoint."""
-    if isinstance(spec, SimulatedData):
-        from wrenchd.adapters.sim.scenarios import run_scenario
-
-        session = run_scenario(spec.scenario, spec.duration_s, spec.seed)
-        return session.joint_states, {"source": "simulator", **spec.model_dump()}
-    path = Path(spec.path)
-    if path.suffix.lower() == ".mcap":
-        from wrenchd.adapters.mcap_session import read_session
-
-        return read_session(path).joint_states, {"source": "mcap", "path": spec.path}
-    if path.suffix.lower() == ".csv":
-        from wrenchd.adapters.csv_psm import read_psm_csv
-
-        return (read_psm_csv(path, rate_hz=spec.rate_hz),
-                {"source": "csv", "path": spec.path, "rate_hz": spec.rate_hz})
-    raise ConfigError(f"{spec.path}: data files must be .mcap or .csv")
-
-
-def load_base(reference: str):
-    """A step-1 model from a checkpoint path or ``pretrained:<name>``."""
-    from wrenchd.models.estimator.checkpoint import load_checkpoint
-    from wrenchd.models.estimator.pretrained import load_pretrained
-
-    if reference.startswith("pretrained:"):
-        return load_pretrained(reference.removeprefix("pretrained:"))
-    ckpt = load_checkpoint(reference)
-    if ckpt.kind != "free_space":
-        raise ConfigError(f"{reference}: base checkpoint must be a step-1 (free_space) model, "
-                          f"got {ckpt.kind}")
-    return ckpt.model
-
-
-def train(config: TrainCommandConfig, output: str | None = None, device: str | None = None,
-          progress: bool = True) -> dict[str, Any]:
-    """Train as ``config`` says and write the checkpoint. Returns a summary."""
+def train_network(args: argparse.Namespace) -> int:
     import torch
-    from tqdm import tqdm
 
-    from wrenchd.models.estimator.checkpoint import save_result
-    from wrenchd.models.estimator.training import (fit_corr, fit_free_space, fit_xfer, recipe,
-                                           training_device)
-
-    train_config = recipe(config.recipe_name, **{**config.overrides, "seed": config.seed})
-    dev = training_device(device)
-    series, described = [], []
-    for spec in tqdm(config.data, desc="data", unit="series", disable=not progress):
-        js, info = load_series(spec)
-        series.append(js)
-        described.append(info)
-    data = {"configuration": config.configuration, "recipe": config.recipe_name,
-            "series": described, "description": config.description,
-            "base_checkpoint": config.base_checkpoint, "device": str(dev)}
-    bar = tqdm(total=train_config.epochs, desc=f"train {config.configuration}", unit="epoch",
-               disable=not progress)
-
-    def on_epoch(epoch: int, score: float) -> None:
-        bar.update(1)
-        bar.set_postfix(val=f"{score:.4f}")
-
-    start = time.perf_counter()
-    try:
-        if config.configuration in ("base", "troc"):
-            result = fit_free_space(series, config=train_config, data=data, on_epoch=on_epoch,
-                                    device=dev)
-        elif config.configuration == "xfer":
-            result = fit_xfer(load_base(config.base_checkpoint), series, config=train_config,
-                              data=data, on_epoch=on_epoch, device=dev)
-        else:
-            result = fit_corr(load_base(config.base_checkpoint), series, config=train_config,
-                              data=data, on_epoch=on_epoch)
-    finally:
-        bar.close()
-    seconds = time.perf_counter() - start
-    result.data["train_seconds"] = round(seconds, 2)
-    result.data["torch"] = torch.__version__
-    out = Path(output or config.output)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    save_result(out, result)
-    return {"output": str(out), "kind": result.kind, "train_seconds": round(seconds, 2),
-            "epochs_run": result.validation.get("epochs_run"),
-            "validation_score": result.validation.get("score"),
-            "validation_rmse": result.validation.get("rmse")}
-
-
-def _cmd_train(args: argparse.Namespace) -> int:
-    import torch
+    from wrenchd.service.studies.training import read_train_config, train
 
     if args.threads:
         torch.set_num_threads(args.threads)
@@ -224,4 +57,4 @@ def register(subparsers) -> None:
     p.add_argument("--device", help="cpu, cuda, cuda:1 ... (default: CUDA when present)")
     p.add_argument("--threads", type=int, default=None, help="torch CPU threads")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
-    p.set_defaults(func=_cmd_train)
+    p.set_defaults(func=train_network)

@@ -1,7 +1,7 @@
 """Several policies over several sessions: a side-by-side table and error-over-time plots.
 
 Each session is loaded once and every policy replays it from the same start (same step-1
-model, same seed). Written to ``out_dir``: ``compare.json`` (every replay's metrics),
+model, same seed). Written to ``out_dir``: ``compare.json`` (every replay's metrics and provenance),
 ``compare.md`` (the table) and one ``<session>.png`` per session with truth: the free-motion
 force error over time (1 s bins, top) and the contact force error (bottom), one line per
 policy, set-up changes as dashed lines and true contacts shaded.
@@ -18,11 +18,11 @@ import numpy as np
 
 from wrenchd.models.estimator.free_space import FreeSpaceModel
 from wrenchd.models.series import Session
-from wrenchd.service.pipeline.arm import PipelineConfig
+from wrenchd.service.pipeline import PipelineConfig
 from wrenchd.service.replay.policies import get_policy
 from wrenchd.service.replay.loop import replay
 from wrenchd.service.replay.metrics import free_error_series, replay_metrics
-from wrenchd.service.replay.output import _finite
+from wrenchd.service.replay.output import nan_to_none
 from wrenchd.service.replay.source import drift_onsets, load_session
 
 
@@ -111,9 +111,11 @@ def run_compare(policies: list[str], sessions: list[str], out_dir: str | Path,
         session = load_session(spec)
         series = {}
         for policy in policies:
+            meter = RunMeter()
             r = replay(session, free_space, configs[policy], policy=policy)
             m = replay_metrics(r, session)
             m["session"] = spec
+            stamp(m, run=meter)                  # where this replay's numbers came from
             rows.append(m)
             series[policy] = free_error_series(r, session)
             d = (m.get("drifts") or [{}])[0]
@@ -122,6 +124,6 @@ def run_compare(policies: list[str], sessions: list[str], out_dir: str | Path,
                 f"{_cell(_get(m, 'truth', 'force_rmse_N', 'contact'))} N")
         if session.truth is not None:
             plot_session(out / f"{_slug(spec)}.png", spec, session, series)
-    (out / "compare.json").write_text(json.dumps(_finite(rows), indent=1, default=str) + "\n")
+    (out / "compare.json").write_text(json.dumps(nan_to_none(rows), indent=1, default=str) + "\n")
     (out / "compare.md").write_text(table_markdown(rows))
     return rows

@@ -69,16 +69,16 @@ def write_replay_mcap(path: str | os.PathLike[str], r: ReplayResult,
 
 def _event(w: Writer, channel: int, item) -> None:
     stamp, _, ev = item
-    body = json.dumps(_finite(ev.to_json()), sort_keys=True, default=str)
+    body = json.dumps(nan_to_none(ev.to_json()), sort_keys=True, default=str)
     w.add_message(channel, stamp, body.encode(), stamp)
 
 
-def _finite(x):
+def nan_to_none(x):
     """JSON has no NaN: non-finite floats become null."""
     if isinstance(x, float):
         return x if np.isfinite(x) else None
     if isinstance(x, dict):
-        return {k: _finite(v) for k, v in x.items()}
+        return {k: nan_to_none(v) for k, v in x.items()}
     if isinstance(x, (list, tuple)):
-        return [_finite(v) for v in x]
+        return [nan_to_none(v) for v in x]
     return x

@@ -39,15 +39,16 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from wrenchd.models.errors import ConfigError
-from wrenchd.service.pipeline.arm import POLICIES as MECHANISMS
-from wrenchd.service.pipeline.arm import PipelineConfig
+from wrenchd.service.pipeline import POLICIES as MECHANISMS
+from wrenchd.service.pipeline import PipelineConfig
 
 
-def _merge(base: dict[str, Any], extra: dict[str, Any]) -> dict[str, Any]:
+def merge_nested(base: dict[str, Any], extra: dict[str, Any]) -> dict[str, Any]:
+    """``base`` with ``extra`` merged in: nested dicts key by key, anything else replaced."""
     out = dict(base)
     for key, value in extra.items():
         if isinstance(value, dict) and isinstance(out.get(key), dict):
-            out[key] = _merge(out[key], value)
+            out[key] = merge_nested(out[key], value)
         else:
             out[key] = value
     return out
@@ -60,7 +61,7 @@ class Policy:
     Attributes:
         name: what users type (``--policy NAME``).
         description: one line for tables and ``--help``.
-        mechanism: the pipeline's behaviour it uses, one of ``wrenchd.service.pipeline.arm.POLICIES``.
+        mechanism: the pipeline's behaviour it uses, one of ``wrenchd.service.pipeline.config.POLICIES``.
         overrides: nested dict merged into the pipeline config (``{"gate": {...}}``).
     """
 
@@ -78,7 +79,7 @@ class Policy:
         if self.mechanism not in MECHANISMS:
             raise ConfigError(f"policy {self.name!r}: unknown mechanism {self.mechanism!r}; "
                               f"the pipeline has {list(MECHANISMS)}")
-        data = _merge(base.model_dump(), self.overrides)
+        data = merge_nested(base.model_dump(), self.overrides)
         data["policy"] = {**data.get("policy", {}), "name": self.mechanism}
         try:
             return PipelineConfig.model_validate(data)

@@ -21,7 +21,8 @@ import numpy as np
 
 from wrenchd.models.discrepancy.workflow import run_discrepancy
 from wrenchd.service.studies.hidden_effects import HIDDEN_EFFECTS, MIN_SHRINK, PAIRS, TOLERANCE, judge, make_case
-from wrenchd.service.replay.output import _finite
+from wrenchd.service.provenance import PROVENANCE_KEY, RunMeter, provenance
+from wrenchd.service.replay.output import nan_to_none
 
 
 def _run_case(hidden: tuple[str, ...], seed: int, duration: float) -> dict[str, Any]:
@@ -44,6 +45,7 @@ def _rate(rows, key) -> float:
 def hidden_effect_sweep(out: Path, seeds: int, duration: float, pair_seeds: int,
                         effects: list[str] | None = None, none_seeds: int | None = None) -> int:
     """Run the study and write ``hidden-effects.md`` and ``hidden-effects.json`` in ``out``."""
+    meter = RunMeter()
     none_seeds = seeds if none_seeds is None else none_seeds
     effects = list(effects or HIDDEN_EFFECTS)
     out.mkdir(parents=True, exist_ok=True)
@@ -73,7 +75,8 @@ def hidden_effect_sweep(out: Path, seeds: int, duration: float, pair_seeds: int,
         "total_s": total, "machine": f"{platform.machine()}, {os.cpu_count()} cores",
     }
     # strict JSON: a rate over no runs (no pairs asked for) is null, not NaN
-    (out / "hidden-effects.json").write_text(json.dumps(_finite({"summary": summary, "runs": rows}),
+    (out / "hidden-effects.json").write_text(json.dumps(nan_to_none({"summary": summary, "runs": rows,
+                                                                    PROVENANCE_KEY: provenance(run=meter)}),
                                                         indent=1, default=float) + "\n")
     lines = ["# Hidden-effect study of `wrenchd discrepancy`", "",
              f"Command: `OMP_NUM_THREADS=1 nice -n 10 wrenchd discrepancy-sweep --seeds {seeds} "
@@ -174,6 +177,7 @@ def real_data_study(data: Path, out: Path) -> int:
     from wrenchd.models.identification.free_motion import identify_free_motion
     from wrenchd.service.studies.discrepancy_report import write_json, write_report
 
+    study = RunMeter()
     out.mkdir(parents=True, exist_ok=True)
     base = read_psm_csv(data / "one_no_weight.csv")
     t0 = time.perf_counter()
@@ -185,6 +189,7 @@ def real_data_study(data: Path, out: Path) -> int:
     results = {}
     for name, grams in LOADS_G.items():
         js = read_psm_csv(data / name)
+        meter = RunMeter()
         t0 = time.perf_counter()
         res = run_discrepancy(ident.model, js.t, js.position, js.velocity, js.effort)
         seconds = time.perf_counter() - t0
@@ -193,7 +198,7 @@ def real_data_study(data: Path, out: Path) -> int:
         res.updated_model.save(folder / "updated_model.json")
         j = res.to_json(str(folder / "updated_model.json"))
         j["seconds"] = seconds
-        write_json(j, folder / "discrepancy.json")
+        write_json(j, folder / "discrepancy.json", run=meter)
         write_report(res, j, folder, title=f"Discrepancy: identified model vs {name}",
                      measured=f"{data.name}/{name}", model=str(model_path), seconds=seconds)
         results[name] = (res, j, grams)
@@ -267,6 +272,7 @@ def real_data_study(data: Path, out: Path) -> int:
         "disagreeing_joints": {n: [d["joint"] for d in j["disagreements"]] for n, (_, j, _) in results.items()},
         "named": {n: [e["label"] for e in j["effects"]] for n, (_, j, _) in results.items()},
         "excess_shrink": {n: j["gap"]["excess_shrink"] for n, (_, j, _) in results.items()},
+        PROVENANCE_KEY: provenance(run=study),
     }, indent=2) + "\n")
     print((out / "summary.md").read_text())
     return 0

@@ -19,6 +19,7 @@ import numpy as np
 
 from wrenchd.models.discrepancy.workflow import DiscrepancyResult
 from wrenchd.models.series import JOINT_NAMES
+from wrenchd.service.provenance import RunMeter, stamp
 
 UNITS = ("N m", "N m", "N", "N m", "N m", "N m")
 AGAINST = {"coulomb_friction": "velocity", "viscous_friction": "velocity",
@@ -166,6 +167,8 @@ def write_report(res: DiscrepancyResult, out: dict[str, Any], folder: Path, *, t
     return path
 
 
-def write_json(out: dict[str, Any], path: Path) -> None:
+def write_json(out: dict[str, Any], path: Path, run: RunMeter | None = None) -> None:
+    """Write the machine-readable result ``out`` to ``path``, with its provenance (stolen CPU
+    time measured by ``run``, default: over the process)."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(out, indent=2) + "\n")
+    path.write_text(json.dumps(stamp(dict(out), run=run), indent=2) + "\n")

@@ -10,7 +10,7 @@ import pytest
 
 from wrenchd.models.errors import ConfigError
 from wrenchd.models.estimator.checkpoint import load_checkpoint
-from wrenchd.service.cli.train import read_train_config
+from wrenchd.service.studies.training import read_train_config
 
 WRENCHD = [sys.executable, "-m", "wrenchd"]
 ENV = {**os.environ, "OMP_NUM_THREADS": "1"}

@@ -1,0 +1,59 @@
+"""``wrenchd bench``: speed measured, not asserted (the benches are :mod:`wrenchd.service.bench`)."""
+
+from __future__ import annotations
+
+import argparse
+
+#: Default ``--duration`` of each bench [s] (inference and arm when not named: 60).
+#: replay: a 10 min session (60x real time measured); a shorter one is mostly the calibration
+#: minute, whose eager rounds the worker cannot keep up with (38-44x).
+DEFAULT_DURATION_S = {"service": 20.0, "floor": 20.0, "arm": 20.0, "replay": 600.0,
+                      "soak": 1800.0}
+
+
+def realtime_setting(text: str) -> int | str:
+    """``--realtime``: ``auto``, ``off`` or a SCHED_FIFO priority."""
+    if text in ("auto", "off"):
+        return text
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not auto, off or a priority") from None
+
+
+def bench(args: argparse.Namespace) -> int:
+    from wrenchd.service.bench.run import run
+    from wrenchd.service.runtime.scheduling import one_compute_thread
+
+    one_compute_thread()           # the bench process; the daemon and worker do it themselves
+
+    if args.duration is None:
+        args.duration = DEFAULT_DURATION_S.get(args.kind, 60.0)
+    return run(args.kind, args.json, args.duration, args.arms, args.rate, args.pin,
+               args.realtime)
+
+
+def register(sub) -> None:
+    p = sub.add_parser("bench", help="measure speed (medians and percentiles, one run)")
+    p.add_argument("kind", choices=["inference", "arm", "service", "soak", "floor", "replay"],
+                   help="inference: estimator step; arm: per-sample cost of the daemon's "
+                        "work for one arm without zenoh; service: daemon end to end over loopback "
+                        "zenoh; soak: the same for --duration (default 1800 s) with its "
+                        "memory; floor: the service bench against the daemon's plumbing "
+                        "without estimation (this machine's latency floor); replay: "
+                        "replay throughput")
+    p.add_argument("--json", help="also write the result to this file")
+    p.add_argument("--duration", type=float, default=None,
+                   help="inference: session length [s] (60); replay: session length "
+                        "[s] (600); service: measured [s] (20)")
+    p.add_argument("--arms", type=int, default=1, help="service: arms at once (PSM1..)")
+    p.add_argument("--rate", type=float, default=1000.0, help="service: rate per arm [Hz]")
+    p.add_argument("--pin", action="store_true",
+                   help="service/soak/floor: the daemon on the last CPU alone, its worker "
+                        "and the bench on the others (the daemon's [cpus] settings)")
+    p.add_argument("--realtime", type=realtime_setting, default="auto",
+                   metavar="auto|off|PRIORITY",
+                   help="service/soak: the daemon's [cpus] realtime_priority, which this "
+                        "bench's publisher and subscriber take too (default auto: "
+                        "SCHED_FIFO where permitted)")
+    p.set_defaults(func=bench)

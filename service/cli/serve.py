@@ -1,0 +1,39 @@
+"""``wrenchd serve``: the daemon (zenoh in, wrenches out, gated lifelong adaptation, MCAP log)."""
+
+from __future__ import annotations
+
+import argparse
+
+from wrenchd.service.cli.choices import SCENARIO_CHOICES
+
+
+def serve(args: argparse.Namespace) -> int:
+    from wrenchd.service.runtime.daemon import Daemon
+    from wrenchd.service.runtime.scheduling import one_compute_thread
+    from wrenchd.service.runtime.settings import load_settings
+
+    one_compute_thread()
+
+    overrides: dict = {}
+    if args.log_dir:
+        overrides["log"] = {"directory": args.log_dir}
+    if args.scenario or args.seed is not None:
+        sim = {"scenario": args.scenario or "trocar-contact", "seed": args.seed or 0}
+        overrides["simulator"] = sim
+    settings = load_settings(args.config, **overrides)
+    duration = args.duration if args.duration is not None else settings.duration_s
+    if duration is not None and settings.duration_s != duration:
+        settings = settings.model_copy(update={"duration_s": duration})
+    return Daemon(settings).run(duration)
+
+
+def register(sub) -> None:
+    p = sub.add_parser("serve", help="run the daemon (embedded default: simulated PSM1)")
+    p.add_argument("--config", help="TOML settings (see deploy/config/); env WRENCHD_* overrides")
+    p.add_argument("--duration", type=float, default=None,
+                   help="stop after this many seconds (default: until Ctrl-C)")
+    p.add_argument("--log-dir", help="MCAP log directory (default: sessions)")
+    p.add_argument("--scenario", choices=SCENARIO_CHOICES, default=None, metavar="NAME",
+                   help="scenario of the simulated PSM (robot = simulated): %(choices)s")
+    p.add_argument("--seed", type=int, default=None, help="seed of the simulated PSM")
+    p.set_defaults(func=serve)
