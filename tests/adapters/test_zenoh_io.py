@@ -14,8 +14,7 @@ from pydantic import ValidationError
 
 from wrenchd.adapters.zenoh_io import ZenohConfig, open_session
 from wrenchd.models.errors import AdapterError
-from tests.service.runtime.test_daemon import free_port
-from tests.service.runtime.test_zenoh_restart import ROUTER, readline_within
+from tests.support import ROUTER, free_port, readline_within
 
 
 def test_retry_and_timeout_settings_reach_zenoh():

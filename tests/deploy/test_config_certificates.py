@@ -17,7 +17,8 @@ import zenoh
 
 from wrenchd.adapters.zenoh_io import ZenohConfig, open_session
 from wrenchd.service.runtime.settings import load_settings
-from tests.deploy.test_router_acl import EC_KEY, free_port, open_router, openssl
+from tests.deploy.test_router_acl import EC_KEY, open_router, openssl
+from tests.support import free_port
 
 DEPLOY = Path(__file__).resolve().parents[2] / "deploy"
 ROUTER = DEPLOY / "zenoh" / "router.json5"

@@ -12,6 +12,8 @@ from pathlib import Path
 import pytest
 import zenoh
 
+from tests.support import communicate_within
+
 ROOT = Path(__file__).resolve().parents[2]
 DEPLOY = ROOT / "deploy"
 CONFIGS = sorted((DEPLOY / "config").glob("*.toml"))
@@ -34,7 +36,7 @@ def config_runs(tmp_path_factory):
     procs = {p.stem: start_config(p) for p in [*CONFIGS, bad]}
     runs = {}
     for name, proc in procs.items():
-        out, err = proc.communicate(timeout=300)
+        out, err = communicate_within(proc, 300.0, f"wrenchd config ({name})")
         runs[name] = (proc.returncode, out, err)
     return runs
 

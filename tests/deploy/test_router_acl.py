@@ -2,7 +2,6 @@
 certificates from a throw-away CA, lets only the right certificate publish each key."""
 
 import json
-import socket
 import subprocess
 import time
 from pathlib import Path
@@ -12,6 +11,7 @@ import zenoh
 
 from wrenchd.adapters.zenoh_io import ZenohConfig, open_session
 from wrenchd.service.runtime.settings import load_settings
+from tests.support import free_port
 
 DEPLOY = Path(__file__).resolve().parents[2] / "deploy"
 ROUTER = DEPLOY / "zenoh" / "router.json5"
@@ -19,14 +19,8 @@ EC_KEY = ("-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:prime256v1", "-nodes")
 CNS = ["or-router-1", "wrenchd-psm1", "dvrk-psm1", "haptics", "intruder"]
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def openssl(*args, cwd):
-    subprocess.run(["openssl", *args], cwd=cwd, check=True, capture_output=True)
+    subprocess.run(["openssl", *args], cwd=cwd, check=True, capture_output=True, timeout=60)
 
 
 @pytest.fixture(scope="module")

@@ -8,7 +8,7 @@ import signal
 import subprocess
 import sys
 
-from tests.service.runtime.test_daemon import free_port, write_config
+from tests.support import communicate_within, expect_line, free_port, stop_within, write_config
 
 CLI = [sys.executable, "-m", "wrenchd"]
 
@@ -20,17 +20,17 @@ def test_echo_prints_live_wrenches_events_and_status(tmp_path):
                               stderr=subprocess.PIPE, text=True)
     echo = None
     try:
-        assert "dvrk/PSM2/measured_js" in daemon.stdout.readline()
+        expect_line(daemon, "dvrk/PSM2/measured_js", 120.0, "the daemon")
         echo = subprocess.Popen([*CLI, "echo", "--arm", "PSM2", "--connect", endpoint,
                                  "--count", "40", "--every", "1", "--events", "--timeout", "90"],
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        assert "listening on 'dvrk/PSM2/wrenchd/measured_cf'" in echo.stdout.readline()
+        expect_line(echo, "listening on 'dvrk/PSM2/wrenchd/measured_cf'", 60.0, "wrenchd echo")
         robot = subprocess.run(
             [*CLI, "robot", "--scenario", "trocar", "--seed", "2", "--arm", "PSM2",
              "--duration", "3", "--connect", endpoint, "--out-dir", str(tmp_path / "robot"),
              "--quiet"], capture_output=True, text=True, timeout=120)
         assert robot.returncode == 0, robot.stderr
-        out, err = echo.communicate(timeout=60)
+        out, err = communicate_within(echo, 60.0, "wrenchd echo")
         assert echo.returncode == 0, err
         # wrenchd announce: a set-up change notice the daemon takes (status shows it)
         told = subprocess.run([*CLI, "announce", "--arm", "PSM2", "--connect", endpoint,
@@ -46,8 +46,7 @@ def test_echo_prints_live_wrenches_events_and_status(tmp_path):
     finally:
         if echo is not None and echo.poll() is None:
             echo.kill()
-        daemon.send_signal(signal.SIGINT)
-        daemon.communicate(timeout=60)
+        stop_within(daemon, 60.0, "the daemon", signal.SIGINT)
     line = re.compile(r"t=\s*[\d.]+ s  F=\[.*\] N  \|F\|=\s*[\d.]+ N  T=\[.*\] N m  "
                       r"(free|contact) v\d+")
     printed = [x for x in out.splitlines() if x.startswith("t=")]
@@ -102,13 +101,12 @@ def test_announce_falls_back_on_the_status_when_no_event_comes_back(tmp_path):
     daemon = subprocess.Popen([*CLI, "serve", "--config", str(config)], stdout=subprocess.PIPE,
                               stderr=subprocess.PIPE, text=True)
     try:
-        assert "dvrk/PSM2/measured_js" in daemon.stdout.readline()
+        expect_line(daemon, "dvrk/PSM2/measured_js", 120.0, "the daemon")
         runs = [subprocess.run([*CLI, "announce", "--arm", "PSM2", "--connect", endpoint,
                                 "--timeout", "2", *at], capture_output=True, text=True,
                                timeout=60) for at in (["--at", "0.5"], [])]
     finally:
-        daemon.send_signal(signal.SIGINT)
-        _, err = daemon.communicate(timeout=60)
+        _, err = stop_within(daemon, 60.0, "the daemon", signal.SIGINT)
     assert daemon.returncode == 0, err
     taken, refused = runs
     assert taken.returncode == 0, taken.stdout + taken.stderr

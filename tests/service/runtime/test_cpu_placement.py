@@ -12,7 +12,7 @@ import pytest
 
 from wrenchd.models.errors import ConfigError
 from wrenchd.service.runtime.settings import load_settings
-from tests.service.runtime.test_daemon import children_of, free_port, wait_for
+from tests.support import children_of, expect_line, free_port, stop_within, wait_for
 
 
 def _allowed(pid: int, tid: int | None = None) -> str:
@@ -48,7 +48,7 @@ directory = "{tmp_path / 'logs'}"
                                str(config)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                               text=True)
     try:
-        assert "listening" in daemon.stdout.readline()
+        expect_line(daemon, "listening", 120.0, "the daemon")
         wait_for(lambda: children_of(daemon.pid), 20.0, "the adaptation worker")
         threads = [int(t) for t in os.listdir(f"/proc/{daemon.pid}/task")]
         assert len(threads) > 3                         # estimation, log, zenoh's own threads
@@ -57,6 +57,5 @@ directory = "{tmp_path / 'logs'}"
         wait_for(lambda: str(worker_cpu) in {_allowed(c) for c in children_of(daemon.pid)},
                  30.0, "the worker on its CPU")
     finally:
-        daemon.send_signal(signal.SIGINT)
-        out, err = daemon.communicate(timeout=60)
+        _, err = stop_within(daemon, 60.0, "the daemon", signal.SIGINT)
     assert daemon.returncode == 0, err

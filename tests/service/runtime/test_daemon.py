@@ -9,11 +9,8 @@ from __future__ import annotations
 
 import json
 import signal
-import socket
 import subprocess
 import sys
-import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -22,57 +19,8 @@ from wrenchd.adapters.mcap_log import TOPIC_ESTIMATE, TOPIC_EVENTS
 from wrenchd.adapters.mcap_session import TOPIC_JOINT_STATES, read_session_report
 from wrenchd.adapters.messages import decode_wrench, encode_joint_state, encode_setup_change
 from wrenchd.adapters.zenoh_io import ZenohConfig, open_session
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def write_config(path: Path, endpoint: str, encoding: str, log_dir: Path,
-                 arms: tuple[str, ...] = ("PSM2",)) -> Path:
-    """An external-robot daemon config listening on ``endpoint``; each arm calibrates 2 s."""
-    text = f"""
-robot = "external"
-[zenoh]
-listen = ["{endpoint}"]
-[log]
-directory = "{log_dir}"
-"""
-    for arm in arms:
-        text += f"""[[arms]]
-name = "{arm}"
-encoding = "{encoding}"
-[arms.pipeline]
-calibration_s = 2.0
-"""
-    path.write_text(text)
-    return path
-
-
-def wait_for(predicate, timeout: float, what: str) -> None:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if predicate():
-            return
-        time.sleep(0.05)
-    raise AssertionError(f"timed out waiting for {what}")
-
-
-def children_of(pid: int) -> list[int]:
-    """The child processes of ``pid`` (Linux /proc)."""
-    return [int(c) for c in Path(f"/proc/{pid}/task/{pid}/children").read_text().split()]
-
-
-def read_mcap(path: Path) -> dict[str, list[bytes]]:
-    from mcap.reader import make_reader
-
-    out: dict[str, list[bytes]] = {}
-    with open(path, "rb") as f:
-        for _schema, channel, message in make_reader(f).iter_messages():
-            out.setdefault(channel.topic, []).append(message.data)
-    return out
+from tests.support import (communicate_within, expect_line, free_port, read_mcap, stop_within,
+                           wait_for, write_config)
 
 
 @pytest.mark.parametrize("encoding", ["json", "cdr"])
@@ -87,8 +35,7 @@ def test_daemon_end_to_end(tmp_path, encoding):
     wrenches: list[tuple[int, str, np.ndarray, dict]] = []
     events: list[dict] = []
     try:
-        banner = daemon.stdout.readline()
-        assert "dvrk/PSM2/measured_js" in banner, banner + daemon.stderr.read()
+        expect_line(daemon, "dvrk/PSM2/measured_js", 120.0, "the daemon")
         session = open_session(ZenohConfig(connect=[endpoint]))
         sub_w = session.declare_subscriber(
             "dvrk/PSM2/wrenchd/measured_cf",
@@ -104,7 +51,7 @@ def test_daemon_end_to_end(tmp_path, encoding):
              "--arm", "PSM2", "--duration", "4", "--encoding", encoding, "--connect", endpoint,
              "--out-dir", str(tmp_path / "robot"), "--quiet"],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        out, err = robot.communicate(timeout=120)
+        out, err = communicate_within(robot, 120.0, "the robot")
         assert robot.returncode == 0, err
         published = int(out.strip().splitlines()[-1].split("after ")[1].split()[0])
         wait_for(lambda: len(wrenches) >= published, 10.0, "every wrench")
@@ -136,8 +83,7 @@ def test_daemon_end_to_end(tmp_path, encoding):
             session.close()
         if robot is not None and robot.poll() is None:
             robot.kill()
-        daemon.send_signal(signal.SIGINT)
-        d_out, d_err = daemon.communicate(timeout=60)
+        d_out, d_err = stop_within(daemon, 60.0, "the daemon", signal.SIGINT)
     assert daemon.returncode == 0, d_err
 
     # one wrench per published joint state, in order, finite

@@ -16,7 +16,7 @@ from wrenchd.adapters.mcap_session import read_session_report
 from wrenchd.adapters.messages import encode_joint_state
 from wrenchd.adapters.sim.scenarios import run_scenario
 from wrenchd.adapters.zenoh_io import ZenohConfig, open_session
-from tests.service.runtime.test_daemon import free_port, wait_for, write_config
+from tests.support import expect_line, free_port, stop_within, wait_for, write_config
 
 
 @contextmanager
@@ -29,15 +29,14 @@ def serving(config, endpoint: str, arms: int):
                               text=True)
     session = None
     try:
-        for _ in range(arms):
-            assert "listening" in daemon.stdout.readline()
+        for k in range(arms):
+            expect_line(daemon, "listening", 120.0, f"the daemon (arm {k + 1} of {arms})")
         session = open_session(ZenohConfig(connect=[endpoint]))
         yield session
     finally:
         if session is not None:
             session.close()
-        daemon.send_signal(signal.SIGINT)
-        _, err = daemon.communicate(timeout=60)
+        _, err = stop_within(daemon, 60.0, "the daemon", signal.SIGINT)
     assert daemon.returncode == 0, err
 
 
@@ -54,7 +53,7 @@ def test_kill_9_of_the_daemon_still_finishes_its_log(tmp_path):
     received: list[int] = []
     session = None
     try:
-        assert "measured_js" in daemon.stdout.readline()
+        expect_line(daemon, "measured_js", 120.0, "the daemon")
         session = open_session(ZenohConfig(connect=[endpoint]))
         sub = session.declare_subscriber("dvrk/PSM2/wrenchd/measured_cf",
                                          lambda s: received.append(1))
@@ -75,11 +74,9 @@ def test_kill_9_of_the_daemon_still_finishes_its_log(tmp_path):
     finally:
         if session is not None:
             session.close()
-        if daemon.poll() is None:
-            daemon.kill()
         # its pipes close when its children are gone too: the log writer when it has finished
         # the files, the worker when it sees its parent gone (seconds on a loaded machine)
-        daemon.communicate(timeout=60)
+        stop_within(daemon, 60.0, "the daemon", signal.SIGKILL)
     assert daemon.returncode == -signal.SIGKILL
     logs = sorted((tmp_path / "logs").glob("PSM2-*.mcap"))
     assert len(logs) == 1

@@ -15,7 +15,7 @@ import pytest
 
 from wrenchd.models.errors import ConfigError
 from wrenchd.service.runtime.settings import AUTO_REALTIME_PRIORITY, load_settings
-from tests.service.runtime.test_daemon import children_of, free_port, wait_for
+from tests.support import children_of, expect_line, free_port, stop_within, wait_for
 
 ROOT = Path(__file__).resolve().parents[3]
 PRIORITY = 7
@@ -49,7 +49,8 @@ enabled = {str(adaptation).lower()}
 
 def _may_use_realtime() -> bool:
     probe = subprocess.run([sys.executable, "-c", "import os; os.sched_setscheduler("
-                            "0, os.SCHED_FIFO, os.sched_param(1))"], capture_output=True)
+                            "0, os.SCHED_FIFO, os.sched_param(1))"], capture_output=True,
+                           timeout=60)
     return probe.returncode == 0
 
 
@@ -72,13 +73,12 @@ def test_by_default_the_sample_path_is_real_time_where_permitted(tmp_path):
                                str(_config(tmp_path, None))], stdout=subprocess.PIPE,
                               stderr=subprocess.PIPE, text=True, cwd=ROOT)
     try:
-        assert "listening" in daemon.stdout.readline()
+        expect_line(daemon, "listening", 120.0, "the daemon")
         threads = _threads(daemon.pid)
         assert any(policy == os.SCHED_FIFO and prio == AUTO_REALTIME_PRIORITY
                    for _, policy, prio in threads.values()), threads
     finally:
-        daemon.send_signal(signal.SIGINT)
-        daemon.communicate(timeout=60)
+        stop_within(daemon, 60.0, "the daemon", signal.SIGINT)
 
 
 @pytest.mark.skipif(not _may_use_realtime(), reason="this machine gives no real-time class")
@@ -87,7 +87,7 @@ def test_a_samples_threads_are_real_time_and_the_rest_is_not(tmp_path):
                                str(_config(tmp_path))], stdout=subprocess.PIPE,
                               stderr=subprocess.PIPE, text=True, cwd=ROOT)
     try:
-        assert "listening" in daemon.stdout.readline()
+        expect_line(daemon, "listening", 120.0, "the daemon")
         wait_for(lambda: children_of(daemon.pid), 20.0, "the adaptation worker")
         children = children_of(daemon.pid)
         threads = _threads(daemon.pid)
@@ -108,8 +108,7 @@ def test_a_samples_threads_are_real_time_and_the_rest_is_not(tmp_path):
             assert all(_policy(child, int(t))[1] == os.SCHED_OTHER
                        for t in os.listdir(f"/proc/{child}/task"))
     finally:
-        daemon.send_signal(signal.SIGINT)
-        out, err = daemon.communicate(timeout=60)
+        _, err = stop_within(daemon, 60.0, "the daemon", signal.SIGINT)
     assert daemon.returncode == 0, err
 
 
@@ -135,14 +134,10 @@ def test_a_daemon_that_may_not_is_refused_with_what_to_do_or_by_default_runs_nor
                                   stderr=subprocess.PIPE, text=True, cwd=ROOT,
                                   env={**os.environ, "HOME": tmp})
         try:
-            line = daemon.stdout.readline()
-            if "listening" not in line:
-                daemon.kill()
-                raise AssertionError(f"{line}{daemon.stdout.read()}{daemon.stderr.read()}")
+            expect_line(daemon, "listening", 120.0, "the unprivileged daemon")
             assert {p for _, p, _ in _threads(daemon.pid).values()} == {os.SCHED_OTHER}
         finally:
-            daemon.send_signal(signal.SIGINT)
-            _, err = daemon.communicate(timeout=60)
+            _, err = stop_within(daemon, 60.0, "the unprivileged daemon", signal.SIGINT)
         assert daemon.returncode == 0, err
         assert "real-time scheduling is not permitted here" in err, err
     assert run.returncode != 0

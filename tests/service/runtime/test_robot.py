@@ -2,7 +2,6 @@
 
 import json
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -11,12 +10,7 @@ import numpy as np
 
 from wrenchd.adapters.mcap_session import read_session_report
 from wrenchd.adapters.zenoh_io import ZenohConfig, open_session
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+from tests.support import communicate_within, expect_line, free_port, stop_within
 
 
 def test_robot_streams_joint_states_and_records_them(tmp_path):
@@ -28,9 +22,8 @@ def test_robot_streams_joint_states_and_records_them(tmp_path):
     received = []
     session = None
     try:
-        # wait for the daemon's banner, then connect a subscriber to its endpoint
-        banner = proc.stdout.readline()
-        assert "dvrk/PSM2/measured_js" in banner, banner + proc.stderr.read()
+        # wait for the robot's banner, then connect a subscriber to its endpoint
+        expect_line(proc, "dvrk/PSM2/measured_js", 120.0, "the robot")
         session = open_session(ZenohConfig(connect=[endpoint]))
         sub = session.declare_subscriber(
             "dvrk/PSM2/measured_js", lambda s: received.append(json.loads(s.payload.to_bytes())))
@@ -39,8 +32,7 @@ def test_robot_streams_joint_states_and_records_them(tmp_path):
     finally:
         if session is not None:
             session.close()
-        proc.send_signal(signal.SIGINT)
-        out, err = proc.communicate(timeout=30)
+        out, err = stop_within(proc, 30.0, "the robot", signal.SIGINT)
     assert proc.returncode == 0, err
     assert "stopped after" in out
     # ~200 Hz for the time we listened, in order, six joints each
@@ -76,7 +68,7 @@ def run_robot_listening(tmp_path, *extra):
                                            lambda s: setups.append(s.payload.to_bytes())),
                 session.declare_subscriber("dvrk/PSM1/measured_js",
                                            lambda s: states.append(1))]
-        out, err = proc.communicate(timeout=60)
+        out, err = communicate_within(proc, 60.0, "the robot")
         for sub in subs:
             sub.undeclare()
     finally:

@@ -15,6 +15,6 @@ def test_one_compute_thread_limits_blas_after_numpy_was_imported():
     env = {k: v for k, v in os.environ.items()
            if k not in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                         env=env, check=True).stdout.split()
+                         env=env, check=True, timeout=120).stdout.split()
     assert int(out[0]) == os.cpu_count()        # what the daemon had before (one per core)
     assert out[1:] == ["[1]"]

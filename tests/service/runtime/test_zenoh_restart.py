@@ -17,7 +17,6 @@
 from __future__ import annotations
 
 import json
-import selectors
 import signal
 import subprocess
 import sys
@@ -29,7 +28,7 @@ import numpy as np
 from wrenchd.adapters.messages import decode_wrench
 from wrenchd.adapters.zenoh_io import ZenohConfig, open_session
 from wrenchd.adapters.mcap_log import TOPIC_EVENTS
-from tests.service.runtime.test_daemon import free_port, read_mcap, wait_for
+from tests.support import ROUTER, free_port, read_mcap, readline_within, stop_within, wait_for
 
 KEYS = {k: f"dvrk/PSM2/{v}" for k, v in (("wrench", "wrenchd/measured_cf"),
                                          ("events", "wrenchd/events"),
@@ -39,31 +38,6 @@ KEYS = {k: f"dvrk/PSM2/{v}" for k, v in (("wrench", "wrenchd/measured_cf"),
 #: ~0.3-1.5 s on the shared 2-core machine with the 1 s retry ceiling (zenoh's own 4 s ceiling
 #: would allow up to ~4 s)
 RESUME_S = 5.0
-
-ROUTER = """
-import json, sys, zenoh
-conf = zenoh.Config()
-conf.insert_json5("mode", '"router"')
-conf.insert_json5("listen/endpoints", json.dumps([sys.argv[1]]))
-conf.insert_json5("scouting/multicast/enabled", "false")
-session = zenoh.open(conf)
-print("ready", flush=True)
-sys.stdin.read()             # until the test closes stdin (or kills this process)
-session.close()
-"""
-
-
-def readline_within(proc: subprocess.Popen, timeout: float, what: str) -> str:
-    """The next line of ``proc``'s stdout, or AssertionError after ``timeout`` seconds."""
-    with selectors.DefaultSelector() as sel:
-        sel.register(proc.stdout, selectors.EVENT_READ)
-        if not sel.select(timeout):
-            raise AssertionError(f"no line from {what} within {timeout} s")
-    line = proc.stdout.readline()
-    if not line:
-        raise AssertionError(f"{what} exited (rc {proc.poll()}) before printing a line")
-    return line
-
 
 def start_router(endpoint: str) -> subprocess.Popen:
     proc = subprocess.Popen([sys.executable, "-c", ROUTER, endpoint], stdin=subprocess.PIPE,
@@ -210,8 +184,7 @@ def test_router_killed_and_restarted_mid_stream(tmp_path):
         assert daemon.poll() is None                         # the daemon never stopped
         assert listener.alive()                              # its liveliness token is back
         status = listener.status()                           # and its queryable answers
-        robot.send_signal(signal.SIGINT)                     # a clean stop: its count
-        out, err = robot.communicate(timeout=60)
+        out, err = stop_within(robot, 60.0, "the robot", signal.SIGINT)   # a clean stop: its count
         assert robot.returncode == 0, err
         published = int(out.strip().splitlines()[-1].split("after ")[1].split()[0])
         time.sleep(1.0)                                      # the last wrenches arrive
@@ -277,8 +250,7 @@ def test_peer_publisher_killed_and_restarted(tmp_path):
         print(f"publisher restart: wrenches again {resume_s:.2f} s after it published")
         assert daemon.poll() is None
         status = listener.status()
-        robot.send_signal(signal.SIGINT)
-        _, err = robot.communicate(timeout=60)
+        _, err = stop_within(robot, 60.0, "the robot", signal.SIGINT)
         assert robot.returncode == 0, err
     finally:
         if listener is not None:
