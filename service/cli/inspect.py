@@ -7,7 +7,7 @@ import json
 
 
 def inspect_session(args: argparse.Namespace) -> int:
-    from wrenchd.adapters.mcap_session import read_session_report
+    from wrenchd.adapters.mcap_session_reader import read_session_report
 
     session, info = read_session_report(args.session)
     js = session.joint_states

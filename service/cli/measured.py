@@ -19,7 +19,7 @@ def read_measured(path: str, fmt: str = "auto", rate_hz: float = 200.0):
     """Joint states (``JointStates``) of a recording: CSV (WPI or paper layout) or an MCAP
     session."""
     if fmt == "mcap" or (fmt == "auto" and str(path).endswith(".mcap")):
-        from wrenchd.adapters.mcap_session import read_session
+        from wrenchd.adapters.mcap_session_reader import read_session
         return read_session(path).joint_states
     from wrenchd.adapters.csv_psm import read_psm_csv
     if fmt not in ("auto", "wpi", "paper"):

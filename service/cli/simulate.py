@@ -10,7 +10,7 @@ from wrenchd.service.cli.choices import SCENARIO_CHOICES
 
 
 def simulate(args: argparse.Namespace) -> int:
-    from wrenchd.adapters.mcap_session import write_session
+    from wrenchd.adapters.mcap_session_writer import write_session
     from wrenchd.adapters.sim.scenarios import run_scenario
     from wrenchd.adapters.sim.simulator import SimulatorConfig
     from wrenchd.models.physics.model import PhysicsModel

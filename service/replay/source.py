@@ -46,7 +46,7 @@ def load_session(spec: str) -> Session:
                        {**session.metadata, "source": spec})
     suffix = Path(spec).suffix.lower()
     if suffix == ".mcap":
-        from wrenchd.adapters.mcap_session import read_session
+        from wrenchd.adapters.mcap_session_reader import read_session
 
         session = read_session(spec)
         return Session(session.joint_states, session.truth, {**session.metadata, "source": spec})

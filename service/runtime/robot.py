@@ -17,7 +17,7 @@ import signal
 import time
 from pathlib import Path
 
-from wrenchd.adapters.mcap_session import SessionWriter
+from wrenchd.adapters.mcap_session_writer import SessionWriter
 from wrenchd.adapters.sim.scenarios import run_scenario
 from wrenchd.adapters.sim.simulator import SimulatorConfig
 from wrenchd.adapters.messages import encode_joint_state, encode_setup_change, stamp_ns_of

@@ -106,7 +106,7 @@ def load_series(spec: SimulatedData | FileData):
         return session.joint_states, {"source": "simulator", **spec.model_dump()}
     path = Path(spec.path)
     if path.suffix.lower() == ".mcap":
-        from wrenchd.adapters.mcap_session import read_session
+        from wrenchd.adapters.mcap_session_reader import read_session
 
         return read_session(path).joint_states, {"source": "mcap", "path": spec.path}
     if path.suffix.lower() == ".csv":

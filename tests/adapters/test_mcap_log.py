@@ -5,7 +5,8 @@ import shutil
 import numpy as np
 
 from wrenchd.adapters.mcap_log import TOPIC_ESTIMATE, LogConfig, McapLog
-from wrenchd.adapters.mcap_session import TOPIC_JOINT_STATES, read_session_report
+from wrenchd.adapters.mcap_session import TOPIC_JOINT_STATES
+from wrenchd.adapters.mcap_session_reader import read_session_report
 from wrenchd.adapters.messages import encode_joint_state
 from wrenchd.models.series import JOINT_NAMES
 

@@ -19,11 +19,9 @@ from wrenchd.adapters.mcap_session import (
     TOPIC_SENSOR_WRENCH,
     TOPIC_TORQUES,
     TOPIC_WRENCH,
-    SessionWriter,
-    read_session,
-    read_session_report,
-    write_session,
 )
+from wrenchd.adapters.mcap_session_reader import read_session, read_session_report
+from wrenchd.adapters.mcap_session_writer import SessionWriter, write_session
 from wrenchd.models.errors import AdapterError, DataError
 from wrenchd.models.series import GroundTruth, JointStates, Session
 

@@ -13,7 +13,8 @@ import pytest
 import torch
 
 from wrenchd.adapters.mcap_log import TOPIC_ESTIMATE, LogConfig, McapLog
-from wrenchd.adapters.mcap_session import TOPIC_JOINT_STATES, read_session
+from wrenchd.adapters.mcap_session import TOPIC_JOINT_STATES
+from wrenchd.adapters.mcap_session_reader import read_session
 from wrenchd.adapters.messages import encode_joint_state
 from wrenchd.models.errors import ConfigError
 from wrenchd.models.estimator.pretrained import load_pretrained

@@ -16,7 +16,8 @@ import numpy as np
 import pytest
 
 from wrenchd.adapters.mcap_log import TOPIC_ESTIMATE, TOPIC_EVENTS
-from wrenchd.adapters.mcap_session import TOPIC_JOINT_STATES, read_session_report
+from wrenchd.adapters.mcap_session import TOPIC_JOINT_STATES
+from wrenchd.adapters.mcap_session_reader import read_session_report
 from wrenchd.adapters.messages import decode_wrench, encode_joint_state, encode_setup_change
 from wrenchd.adapters.zenoh_io import ZenohConfig, open_session
 from tests.support import (communicate_within, expect_line, free_port, read_mcap, stop_within,

@@ -12,7 +12,7 @@ from contextlib import contextmanager
 import numpy as np
 import zenoh
 
-from wrenchd.adapters.mcap_session import read_session_report
+from wrenchd.adapters.mcap_session_reader import read_session_report
 from wrenchd.adapters.messages import encode_joint_state
 from wrenchd.adapters.sim.scenarios import run_scenario
 from wrenchd.adapters.zenoh_io import ZenohConfig, open_session

@@ -13,7 +13,8 @@ import numpy as np
 from mcap.reader import make_reader
 
 from wrenchd.adapters.mcap_log import TOPIC_ESTIMATE, LogConfig, McapLog, estimate_record
-from wrenchd.adapters.mcap_session import TOPIC_JOINT_STATES, read_session_report
+from wrenchd.adapters.mcap_session import TOPIC_JOINT_STATES
+from wrenchd.adapters.mcap_session_reader import read_session_report
 from wrenchd.adapters.messages import encode_joint_state
 from wrenchd.models.series import JOINT_NAMES
 from wrenchd.service.runtime.log_process import LogWriterProcess

@@ -8,7 +8,7 @@ import time
 
 import numpy as np
 
-from wrenchd.adapters.mcap_session import read_session_report
+from wrenchd.adapters.mcap_session_reader import read_session_report
 from wrenchd.adapters.zenoh_io import ZenohConfig, open_session
 from tests.support import communicate_within, expect_line, free_port, stop_within
 
