@@ -91,7 +91,9 @@ class ExcitationConfig(BaseModel):
     margin: float = Field(default=0.98, gt=0, le=1.0,
                           description="fraction of each limit the trajectory may use")
     samples: int = Field(default=100, ge=20, description="regressor samples per period")
-    iterations: int = Field(default=100, ge=0, description="optimiser iterations (0: none)")
+    iterations: int = Field(default=100, ge=0, description="optimiser budget: at most this many "
+                            "iterations and iterations x (decision variables + 1) objective "
+                            "evaluations (0: keep the seeded start)")
     seed: int = 0
 
     @model_validator(mode="after")
