@@ -5,7 +5,7 @@
    (:mod:`~wrenchd.models.discrepancy.residual`).
 2. **Name**: candidate effects (:mod:`~wrenchd.models.discrepancy.candidates`) tested by held-out BIC,
    bootstrap stability and size (:mod:`~wrenchd.models.discrepancy.selection`).
-3. **Add**: the model plus the named effects (:func:`~wrenchd.models.discrepancy.candidates.merge_effects`).
+3. **Add**: the model plus the named effects (:func:`~wrenchd.models.discrepancy.merging.merge_effects`).
 4. **Gap**: held-out (out-of-fold) residual RMS per joint before and after.
 
 The JSON contract (:meth:`DiscrepancyResult.to_json`)::
@@ -30,7 +30,8 @@ from typing import Any
 
 import numpy as np
 
-from wrenchd.models.discrepancy.candidates import NOT_CANDIDATES, build_candidates, merge_effects
+from wrenchd.models.discrepancy.candidates import NOT_CANDIDATES, build_candidates
+from wrenchd.models.discrepancy.merging import merge_effects
 from wrenchd.models.discrepancy.residual import find, noise_floor
 from wrenchd.models.discrepancy.selection import Named, Stacked, heldout_prediction, select
 from wrenchd.models.errors import DataError

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from wrenchd.models.discrepancy.candidates import (PAYLOAD_SITES, bristle_state, build_candidates,
-                                           merge_effects)
+from wrenchd.models.discrepancy.candidates import PAYLOAD_SITES, bristle_state, build_candidates
+from wrenchd.models.discrepancy.merging import merge_effects
 from wrenchd.models.discrepancy.residual import noise_floor, white_noise_level
 from wrenchd.models.physics.effects import EFFECTS, Motion
 from wrenchd.models.physics.effects.seal import seal_force
