@@ -5,6 +5,8 @@ import os
 import subprocess
 import sys
 
+import pytest
+
 from wrenchd.service.studies.reproduction import AXES, CONFIGS
 
 
@@ -28,9 +30,15 @@ def test_quick_reproduction_writes_the_report(tmp_path):
         for length in ("20.0", "40.0"):
             summary = r["contact"][name][length]
             # Nothing predicts the internal torque better than the simulator's own noise-free
-            # value: every configuration sits above the oracle floor (noise only).
-            assert summary["force_rmse"] > 0.9 * oracle and summary["force_ratio"] > 0.9
-            assert len(summary["rmse"]) == 6
+            # value: every configuration sits above the oracle floor (noise only) on every
+            # axis, forces and torques (measured 2.9-21x on the quick run). A configuration
+            # that saw the true torques would sit on the floor (1.0) and fail here.
+            assert len(summary["rmse"]) == len(summary["ratio"]) == 6
+            assert min(summary["ratio"]) > 1.0, (name, length, summary["ratio"])
+            assert summary["force_rmse"] > oracle, (name, length, summary["force_rmse"])
+            # and the mean force's ratio is that RMSE over the floor's
+            assert summary["force_ratio"] == pytest.approx(summary["force_rmse"] / oracle,
+                                                           rel=1e-9)
     # The floor is the effort noise through J^-T: well under a newton on these trials.
     assert 0.0 < oracle < 0.5
     assert r["fast_vs_paper"]["fast"]["train_seconds"] > 0
