@@ -53,4 +53,10 @@ def test_no_gravity_without_gravity():
 def test_config_validation_names_the_value():
     with pytest.raises(ValueError, match="armature"):
         RigidBodyConfig(armature=(0.1, 0.1))
-    assert ConfigError is not None
+    # read from a model file, the same mistake is a ConfigError naming the field
+    from wrenchd.models.physics.model import PhysicsModel
+
+    with pytest.raises(ConfigError, match="rigid_body.armature"):
+        PhysicsModel.from_dict({"rigid_body": {"armature": [0.1, 0.1]}, "effects": []})
+    with pytest.raises(ConfigError, match="rigid_body.links"):
+        PhysicsModel.from_dict({"rigid_body": {"links": []}, "effects": []})
