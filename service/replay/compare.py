@@ -19,6 +19,7 @@ import numpy as np
 from wrenchd.models.estimator.free_space import FreeSpaceModel
 from wrenchd.models.series import Session
 from wrenchd.service.pipeline import PipelineConfig
+from wrenchd.service.provenance import RunMeter, stamp
 from wrenchd.service.replay.policies import get_policy
 from wrenchd.service.replay.loop import replay
 from wrenchd.service.replay.metrics import free_error_series, replay_metrics
