@@ -8,7 +8,9 @@ Pure core: arrays in, arrays out; the only file I/O is :mod:`.checkpoint`.
 * :mod:`.correction` step 2: ``Corr`` (feed-forward correction) and ``Xfer`` (transfer learning)
 * :mod:`.wrench`     external torque and the damped inverse-transpose Jacobian map
 * :mod:`.estimator`  ``TwoStepEstimator``: streaming ``step_one`` and offline ``predict_batch``
-* :mod:`.training`   training loops and the paper's recipes
+* :mod:`.training`   the paper's training recipes, results and the train/validation split
+* :mod:`.free_space_training`  step-1 training (truncated BPTT; also Xfer's loop)
+* :mod:`.correction_training`  Xfer and Corr training on a frozen step-1 model
 * :mod:`.checkpoint` self-describing checkpoints, loaded with ``weights_only=True``
 """
 

@@ -5,7 +5,8 @@ import time, torch, numpy as np
 torch.set_num_threads(1)
 from adapters.sim.scenarios import run_scenario
 from models.estimator.pretrained import load_pretrained
-from models.estimator.training import fit_corr, recipe
+from models.estimator.correction_training import fit_corr
+from models.estimator.training import recipe
 from models.estimator.wrench import WrenchMap
 from service.reproduction import ReproductionConfig, training_set, predicted_torques, wrench_rmse
 base = load_pretrained("base")

@@ -6,7 +6,8 @@ import time
 import torch
 
 from models.estimator.pretrained import load_pretrained
-from models.estimator.training import fit_corr, recipe
+from models.estimator.correction_training import fit_corr
+from models.estimator.training import recipe
 from service.reproduction import ReproductionConfig, training_set
 
 torch.set_num_threads(1)

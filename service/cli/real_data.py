@@ -3,8 +3,9 @@
     wrenchd real-data --train ../shared/data/wpi-psm/one_no_weight.csv \\
         --test ../shared/data/wpi-psm/two.csv --out reports/real-data-step1.md
 
-Trains the step-1 networks (:func:`wrenchd.models.estimator.training.fit_free_space`, a shortened
-recipe; the last 20 % of the training file selects the best epoch) on one WPI recording,
+Trains the step-1 networks
+(:func:`wrenchd.models.estimator.free_space_training.fit_free_space`, a shortened recipe; the last
+20 % of the training file selects the best epoch) on one WPI recording,
 identifies a rigid-body + friction model by least squares on the same file
 (:mod:`wrenchd.models.physics.least_squares`), and reports the per-joint torque RMSE of both on the
 test recording (another trajectory), with a JSON copy of the numbers beside the Markdown.
@@ -32,7 +33,8 @@ def evaluate(train_csv: str, test_csv: str, seed: int = 0, epochs: int | None = 
              ) -> dict[str, Any]:
     """Train both models on ``train_csv``; RMSEs [N m; N] per joint on both files."""
     from wrenchd.adapters.csv_psm import read_wpi_csv
-    from wrenchd.models.estimator.training import fit_free_space, recipe
+    from wrenchd.models.estimator.free_space_training import fit_free_space
+    from wrenchd.models.estimator.training import recipe
     from wrenchd.models.physics.least_squares import RigidBodyFrictionModel, smoothed_acceleration
 
     train, _ = read_wpi_csv(train_csv)

@@ -36,8 +36,9 @@ from pydantic import BaseModel, ConfigDict, Field
 from wrenchd.adapters.sim.scenarios import run_scenario
 from wrenchd.models.estimator.correction import Corr, Xfer
 from wrenchd.models.estimator.free_space import FreeSpaceModel
-from wrenchd.models.estimator.training import (fit_corr, fit_free_space, fit_xfer, predict_segments,
-                                       recipe)
+from wrenchd.models.estimator.correction_training import fit_corr, fit_xfer, predict_segments
+from wrenchd.models.estimator.free_space_training import fit_free_space
+from wrenchd.models.estimator.training import recipe
 from wrenchd.models.estimator.wrench import WrenchMap
 from wrenchd.models.series import Session
 

@@ -140,8 +140,9 @@ def train(config: TrainCommandConfig, output: str | None = None, device: str | N
     from tqdm import tqdm
 
     from wrenchd.models.estimator.checkpoint import save_result
-    from wrenchd.models.estimator.training import (fit_corr, fit_free_space, fit_xfer, recipe,
-                                           training_device)
+    from wrenchd.models.estimator.correction_training import fit_corr, fit_xfer
+    from wrenchd.models.estimator.free_space_training import fit_free_space
+    from wrenchd.models.estimator.training import recipe, training_device
 
     train_config = recipe(config.recipe_name, **{**config.overrides, "seed": config.seed})
     dev = training_device(device)

@@ -9,7 +9,9 @@ import torch
 from wrenchd.adapters.sim.scenarios import run_scenario
 from wrenchd.models.estimator.correction import Corr, Xfer
 from wrenchd.models.estimator.free_space import FreeSpaceModel
-from wrenchd.models.estimator.training import fit_corr, fit_free_space, recipe
+from wrenchd.models.estimator.correction_training import fit_corr
+from wrenchd.models.estimator.free_space_training import fit_free_space
+from wrenchd.models.estimator.training import recipe
 
 #: Small but real training budgets: the paper's structure (128-unit LSTMs, 256-unit Corr),
 #: a handful of epochs.

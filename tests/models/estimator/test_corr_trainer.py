@@ -6,8 +6,13 @@ import torch
 
 from wrenchd.models.errors import DataError
 from wrenchd.models.estimator.correction import Corr
-from wrenchd.models.estimator.training import (CorrTrainer, corr_inputs, fit_corr, predict_segments,
-                                       recipe)
+from wrenchd.models.estimator.correction_training import (
+    CorrTrainer,
+    corr_inputs,
+    fit_corr,
+    predict_segments,
+)
+from wrenchd.models.estimator.training import recipe
 
 
 def test_batched_step1_equals_one_segment_at_a_time(trained_free_space, trocar_train_sessions):

@@ -10,7 +10,9 @@ from wrenchd.models.estimator.checkpoint import load_checkpoint, save_checkpoint
 from wrenchd.models.estimator.correction import Xfer
 from wrenchd.models.estimator.estimator import TwoStepEstimator
 from wrenchd.models.estimator.free_space import FreeSpaceConfig
-from wrenchd.models.estimator.training import RECIPES, TrainConfig, fit_free_space, fit_xfer, recipe
+from wrenchd.models.estimator.correction_training import fit_xfer
+from wrenchd.models.estimator.free_space_training import fit_free_space
+from wrenchd.models.estimator.training import RECIPES, TrainConfig, recipe
 
 
 def _rmse(err):
