@@ -15,17 +15,15 @@ process, :mod:`wrenchd.service.runtime.worker`) and by replay (inline, in simula
   version number.
 * :meth:`Adapter.on_drift` makes adaptation eager for ``eager_s``: rounds come more often and
   the held-out set restarts with samples after the drift (the old regime is no longer what
-  "recent" means). The reservoir is kept (measured: emptying it, and re-learning the gate's
-  scale, made the insufflation recovery worse and let more contact through).
+  "recent" means). The reservoir is kept: emptying it, and re-learning the gate's scale, makes
+  the insufflation recovery worse and lets more contact through.
 * :meth:`Adapter.on_setup_change` is told of a set-up change (the daemon's ``setup`` key):
   adaptation gets eager as after a drift, and the buffer is *carried over*: the body wall's
   stiffness is tracked per bin of sample time on the offered samples
   (:class:`~wrenchd.models.body_wall_tracker.BodyWallTracker`), and before every round each buffered
   sample from an earlier segment gets ``(k_now - k_then) g(q)`` added to its measured yaw and
   pitch torques (``g``: the wall's torque per N/m). The shift follows the estimates as bins
-  close; each row remembers what it was given. Measured on ``insufflation-change`` seeds 3-8
-  (README, "Insufflation recovery"): every seed back within 10 % of its level before the
-  change, against 4 of 6 without the notice.
+  close; each row remembers what it was given.
 
 Output-layer refit (``refit_shrink`` > 0). A round's few dozen Adam steps on mixed batches
 move the net only part of the way towards a new regime (an insufflation pressure step shifts
@@ -36,13 +34,8 @@ features ``[relu(x W1 + b1), 1]`` of the ring's rows, ``T`` their targets and
 ``lam = refit_shrink * trace(H^T H) / (hidden + 1)``. The hidden features, learned over the
 whole history, are kept; only their read-out follows the recent regime, and the shrinkage
 keeps it from over-fitting a ring that covers a small part of the workspace. The candidate is
-still scored on the held-out set, so a refit that does not help is not swapped in. Measured
-on ``insufflation-change`` (220 s, seeds 3-8, adaptation seeds 0-2; ``levels`` of
-``tests/service/test_lifelong.py``): the free-motion error 60 s after the change falls from
-1.22 to 1.13 N on average (before the change 1.15 vs 1.13 N), post / pre from 1.07 to 1.02,
-and the worst case from 1.29 to 1.16, with 0.3 (1.0 gives the same means, worst case 1.21);
-no more contact samples reach training on ``trocar-contact`` and ``instrument-drift``. It
-costs ~3 ms per round (the ring's hidden features and a 65 x 65 solve; 40 Adam steps ~7 ms).
+still scored on the held-out set, so a refit that does not help is not swapped in (the
+figures are in docs/results.md).
 
 The first net is a fresh ``Corr`` whose output layer is zero: it changes nothing until a round
 has been accepted. Its input and torque normalisation is the step-1 model's (fitted on the
@@ -51,152 +44,20 @@ many "standard deviations" away when the arm moves elsewhere; without it, the fi
 ``min_train_samples`` samples set it.
 """
 
+
 from __future__ import annotations
 
 import copy
-from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 import torch
-from pydantic import BaseModel, ConfigDict, Field
 
-from wrenchd.models.body_wall_tracker import (WALL_JOINTS, BodyWallTracker, BodyWallTrackerConfig,
-                                     wall_regressors)
+from wrenchd.models.body_wall_tracker import (WALL_JOINTS, BodyWallTracker, wall_regressors)
 from wrenchd.models.estimator.corr_finetune import CorrFineTuner
 from wrenchd.models.estimator.correction import Corr, CorrConfig, CorrKernel, zero_corr
+from wrenchd.models.adaptation.buffer import RowRing
+from wrenchd.models.adaptation.config import AdaptationConfig, RoundResult
 from wrenchd.models.series import N_JOINTS
-
-
-class AdaptationConfig(BaseModel):
-    """How the correction net follows the set-up."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-    enabled: bool = True
-    recent_size: int = Field(default=3000, ge=16, description="recent ring [samples]")
-    reservoir_size: int = Field(default=6000, ge=0, description="older samples kept [samples]")
-    recent_fraction: float = Field(default=0.6, ge=0.0, le=1.0,
-                                   description="share of a batch drawn from the recent ring")
-    holdout_every: int = Field(default=5, ge=2, description="every k-th sample validates")
-    holdout_size: int = Field(default=800, ge=16, description="recent held-out samples")
-    min_train_samples: int = Field(default=600, ge=16,
-                                   description="samples before the first round")
-    round_steps: int = Field(default=40, ge=1, description="Adam steps per round")
-    batch_size: int = Field(default=128, ge=1)
-    lr: float = Field(default=2e-3, gt=0.0, description="Adam learning rate")
-    weight_decay: float = Field(default=0.01, ge=0.0, description="L2 penalty (paper's Corr)")
-    min_improvement: float = Field(default=0.005, ge=0.0, lt=1.0,
-                                   description="relative validation gain needed to swap")
-    interval_s: float = Field(default=2.0, gt=0.0, description="time between rounds [s]")
-    eager_interval_s: float = Field(default=0.5, gt=0.0,
-                                    description="time between rounds after a drift [s]")
-    eager_s: float = Field(default=30.0, ge=0.0, description="eager period after a drift [s]")
-    hidden_size: int = Field(default=64, ge=1, description="Corr hidden units (paper: 256)")
-    window: int = Field(default=10, ge=1, description="Corr history window (paper: 10)")
-    max_cpu_fraction: float = Field(default=0.5, gt=0.0, le=1.0,
-                                    description="duty cycle of the daemon's worker process")
-    refit_shrink: float = Field(
-        default=0.3, ge=0.0,
-        description="ridge weight of the output-layer refit on the recent ring, towards the "
-                    "current weights, as a multiple of the mean diagonal of the hidden "
-                    "features' Gram matrix [-]; 0 = no refit (module docstring)")
-    seed: int = 0
-    body_wall: BodyWallTrackerConfig = Field(
-        default_factory=BodyWallTrackerConfig,
-        description="the body wall's stiffness tracking and the carry-over at an announced "
-                    "set-up change")
-
-
-@dataclass
-class RoundResult:
-    """What one round did; ``accepted`` rounds carry the new version."""
-
-    t: float
-    accepted: bool
-    version: int
-    val_before: float
-    val_after: float
-    n_train: int
-    n_holdout: int
-    eager: bool
-    state_dict: dict[str, np.ndarray] | None = None
-    #: the accepted net's serving kernel, built where the round ran (the adaptation worker),
-    #: so the process that serves swaps a reference instead of building a module
-    kernel: CorrKernel | None = None
-    #: the body wall's stiffness [N/m] per segment between announced set-up changes, as the
-    #: tracker estimates it (None: no bin yet); one entry until a change is announced
-    body_wall: list[float | None] = field(default_factory=list)
-
-    def summary(self) -> dict[str, Any]:
-        return {"t": self.t, "accepted": self.accepted, "version": self.version,
-                "val_before": self.val_before, "val_after": self.val_after,
-                "n_train": self.n_train, "n_holdout": self.n_holdout, "eager": self.eager,
-                "body_wall_n_per_m": self.body_wall}
-
-
-@dataclass
-class _Ring:
-    """A fixed-capacity ring of (window, step1, measured) rows, with the rows' network input
-    and target (:meth:`Adapter._net_io`) kept beside them: rows written since the last
-    :meth:`normalise` are normalised then, each row once, not once per mini-batch."""
-
-    capacity: int
-    width: int
-    rows: np.ndarray = field(init=False)
-    n: int = 0
-    head: int = 0
-
-    def __post_init__(self) -> None:
-        self.rows = np.zeros((self.capacity, self.width), dtype=np.float32)
-        self.dirty = np.zeros(self.capacity, dtype=bool)
-        self.inp = self.target = np.zeros((0, 0), dtype=np.float32)
-        self._scaling: tuple | None = None
-        # beside each row: its sample time [s] (NaN: unknown) and the stiffness change [N/m]
-        # its measured torques were carried over by
-        self.stamp = np.full(self.capacity, np.nan)
-        self.shift = np.zeros(self.capacity)
-
-    def push(self, row: np.ndarray, stamp: float = np.nan, shift: float = 0.0) -> None:
-        self.put(self.head, row, stamp, shift)
-        self.head = (self.head + 1) % self.capacity
-        self.n = min(self.n + 1, self.capacity)
-
-    def put(self, k: int, row: np.ndarray, stamp: float = np.nan, shift: float = 0.0) -> None:
-        self.rows[k] = row
-        self.dirty[k] = True
-        self.stamp[k] = stamp
-        self.shift[k] = shift
-
-    def data(self) -> np.ndarray:
-        return self.rows[:self.n]
-
-    def clear(self) -> None:
-        self.n = self.head = 0
-
-    def order(self) -> np.ndarray:
-        """Indices of the rows from the oldest to the newest."""
-        if self.n < self.capacity:
-            return np.arange(self.n)
-        return (self.head + np.arange(self.capacity)) % self.capacity
-
-    def normalise(self, scaling: tuple, net_io) -> None:
-        """Bring ``inp`` and ``target`` up to date for ``scaling`` (``shift``, ``scale``,
-        ``tau_std``; ``net_io(rows, scaling)`` -> (input, target), row by row)."""
-        if scaling is not self._scaling:
-            self._scaling = scaling
-            self.dirty[:self.n] = True
-        shift, _, tau_std = scaling
-        if self.inp.shape != (self.capacity, len(shift)):
-            self.inp = np.zeros((self.capacity, len(shift)), dtype=np.float32)
-            self.target = np.zeros((self.capacity, len(tau_std)), dtype=np.float32)
-        idx = np.flatnonzero(self.dirty[:self.n])
-        if len(idx) == 0:
-            return
-        inp, target = net_io(self.rows[idx], scaling)
-        self.inp[idx] = inp
-        self.target[idx] = target
-        self.dirty[idx] = False
 
 
 def normalisation_of(free_space) -> dict[str, np.ndarray]:
@@ -222,9 +83,9 @@ class Adapter:
         self.normalisation = normalisation
         self.corr_config = CorrConfig(window=c.window, hidden_size=c.hidden_size)
         self.width = c.window * 12 + 2 * N_JOINTS
-        self.recent = _Ring(c.recent_size, self.width)
-        self.reservoir = _Ring(max(c.reservoir_size, 1), self.width)
-        self._holdout = _Ring(c.holdout_size, self.width)
+        self.recent = RowRing(c.recent_size, self.width)
+        self.reservoir = RowRing(max(c.reservoir_size, 1), self.width)
+        self._holdout = RowRing(c.holdout_size, self.width)
         self.corr = corr
         if corr is not None:
             self.corr_config = corr.config
@@ -419,7 +280,7 @@ class Adapter:
     def _batch(self, n: int) -> tuple[np.ndarray, np.ndarray]:
         """A mini-batch of ``n`` rows' (network input, target), drawn ``recent_fraction``
         from the recent ring, the rest from the reservoir, from the rings' normalised rows
-        (:meth:`_Ring.normalise` first); the arrays are reused by the next call."""
+        (:meth:`RowRing.normalise` first); the arrays are reused by the next call."""
         n_recent, n_old = self._batch_split(n)
         size = n_recent + n_old
         width = (self.recent.inp.shape[1], self.recent.target.shape[1])

@@ -1,7 +1,7 @@
 """The latency floor of ``wrenchd bench service`` on this machine (``wrenchd bench floor``).
 
 A stand-in for the daemon with the daemon's plumbing and none of its work: per arm a
-subscriber whose callback puts the payload in a :class:`~wrenchd.service.runtime.daemon.SampleRing`, one
+subscriber whose callback puts the payload in a :class:`~wrenchd.service.runtime.plumbing.SampleRing`, one
 thread that drains the rings, reads each joint state's stamp and publishes a zero wrench with
 that stamp. What ``bench service`` measures against it is what zenoh on loopback, the
 callback-to-thread hand-off, the GIL and this machine's scheduling cost before any
@@ -22,7 +22,7 @@ import orjson
 
 from wrenchd.adapters.messages import encode_wrench
 from wrenchd.adapters.zenoh_io import ZenohConfig, open_session
-from wrenchd.service.runtime.daemon import SWITCH_INTERVAL_S, SampleRing
+from wrenchd.service.runtime.plumbing import SWITCH_INTERVAL_S, SampleRing
 
 _ZERO = np.zeros(6)
 

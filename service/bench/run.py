@@ -107,7 +107,7 @@ def bench_arm_thread(duration_s: float = 20.0) -> dict:
     from wrenchd.adapters.messages import decode_joint_state, encode_joint_state, encode_wrench
     from wrenchd.adapters.sim.scenarios import run_scenario
     from wrenchd.models.estimator.pretrained import load_pretrained
-    from wrenchd.service.runtime.daemon import estimate_payload
+    from wrenchd.service.runtime.arm import estimate_payload
     from wrenchd.service.pipeline import ArmPipeline, PipelineConfig, PolicyConfig
 
     js = run_scenario("trocar", duration_s, 1).joint_states

@@ -16,7 +16,7 @@ def compare(args: argparse.Namespace) -> int:
 
     one_compute_thread()
     from wrenchd.service.replay.compare import run_compare
-    from wrenchd.service.runtime.daemon import load_free_space
+    from wrenchd.service.pipeline.step1 import load_free_space
 
     policies = [p for p in args.policies.split(",") if p]
     sessions = [s for part in args.sessions for s in part.split(",") if s]

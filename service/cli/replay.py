@@ -27,7 +27,7 @@ def replay_session(args: argparse.Namespace) -> int:
     from wrenchd.service.replay.output import nan_to_none, write_replay_mcap
     from wrenchd.service.replay.policies import get_policy
     from wrenchd.service.replay.source import announced_changes, load_session
-    from wrenchd.service.runtime.daemon import load_free_space
+    from wrenchd.service.pipeline.step1 import load_free_space
 
     config = get_policy(args.policy).configure(load_pipeline_config(args.config, args.seed))
     session = load_session(args.session)

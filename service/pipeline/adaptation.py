@@ -10,7 +10,8 @@ from typing import Protocol
 
 import numpy as np
 
-from wrenchd.models.adaptation.adapter import Adapter, AdaptationConfig, RoundResult
+from wrenchd.models.adaptation import Adapter, AdaptationConfig, RoundResult
+from wrenchd.models.adaptation.host import AdapterHost
 from wrenchd.models.estimator.correction import Corr, CorrConfig, zero_corr
 
 class AdaptationBackend(Protocol):
@@ -26,28 +27,33 @@ class AdaptationBackend(Protocol):
 
 
 class InlineAdaptation:
-    """The :class:`Adapter` run synchronously in the pipeline's (simulated) time: replay."""
+    """The adaptation host run synchronously in the pipeline's (simulated) time: replay."""
+
+    ARM = "inline"
 
     def __init__(self, config: AdaptationConfig,
                  normalisation: dict[str, np.ndarray] | None = None) -> None:
-        self.config, self.normalisation = config, normalisation
-        self.adapter = Adapter(config, normalisation=normalisation)
+        self.host = AdapterHost({self.ARM: config}, {self.ARM: normalisation})
+
+    @property
+    def adapter(self) -> Adapter:
+        return self.host.adapters[self.ARM]
 
     def offer(self, windows, step1, measured, t=None) -> None:
-        self.adapter.add(windows, step1, measured, t)
+        self.host.call(self.ARM, "samples", 0.0, (windows, step1, measured, t))
 
     def drift(self, t: float) -> None:
-        self.adapter.on_drift(t)
+        self.host.call(self.ARM, "drift", t)
 
     def setup_change(self, t: float) -> None:
-        self.adapter.on_setup_change(t)
+        self.host.call(self.ARM, "setup", t, t)
 
     def tick(self, t: float) -> list[RoundResult]:
-        result = self.adapter.round(t)
+        result = self.host.call(self.ARM, "tick", t)
         return [] if result is None else [result]
 
     def reset(self, t: float) -> None:
-        self.adapter = Adapter(self.config, normalisation=self.normalisation)
+        self.host.call(self.ARM, "reset", t)
 
     def close(self) -> None:
         pass

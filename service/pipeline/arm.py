@@ -17,12 +17,8 @@ Per sample:
    the two-step paper assumes (the surgeon moves the instrument in the patient without
    touching tissue): every sample is taken as free and trains the correction net eagerly;
    at its end the gate re-learns its bounds on the calibrated residual (``calibrated`` event).
-   The contact-free assumption is checked, not trusted: a **calibration guard** (a second
-   :class:`FreeMotionGate` on the *step-1* residual, seeded with the step-1 model's known
-   free-motion residual scale, :class:`CalibrationGuardConfig`) judges every calibration
-   sample and counts those it calls contact; a calibration spent much in contact ends with a
-   ``calibration_contaminated`` event (re-calibrate). With ``action: refuse`` such samples,
-   and the delay line's samples from just before the contact's onset, do not train.
+   The contact-free assumption is checked, not trusted, by the calibration guard
+   (:mod:`wrenchd.service.pipeline.calibration`).
 4. **train offer** (the policy, :class:`PolicyConfig`): with the ``gated`` policy a free
    sample waits ``release_delay_s`` in a delay line and reaches the adaptation only if no
    contact began meanwhile (a contact's onset, still under the gate's bound, is dropped with
@@ -35,23 +31,24 @@ Per sample:
 from __future__ import annotations
 
 import math
-from collections import deque
 from typing import Any
 
 import numpy as np
 
-from wrenchd.models.adaptation.adapter import normalisation_of
+from wrenchd.models.adaptation import normalisation_of
 from wrenchd.models.drift_detector import ResidualDriftDetector
-from wrenchd.models.errors import ConfigError, DataError
+from wrenchd.models.errors import DataError
 from wrenchd.models.estimator.estimator import TwoStepEstimator
 from wrenchd.models.estimator.free_space import FreeSpaceModel
 from wrenchd.models.gate import FreeMotionGate, GateDecision
 from wrenchd.models.series import N_JOINTS, JointSample
+from wrenchd.service.pipeline.calibration import CalibrationGuard
 from wrenchd.service.pipeline.adaptation import AdaptationBackend, InlineAdaptation, initial_corr
 from wrenchd.service.pipeline.config import PipelineConfig
+from wrenchd.service.pipeline.delay_line import DelayLine, offer_rows
 from wrenchd.service.pipeline.records import Counters, Estimate, Event
 from wrenchd.service.pipeline.validation import SampleValidator
-from wrenchd.models.adaptation.adapter import RoundResult
+from wrenchd.models.adaptation import RoundResult
 
 
 class ArmPipeline:
@@ -71,9 +68,8 @@ class ArmPipeline:
         self.policy = c.policy.name
         self.estimator = TwoStepEstimator(free_space, initial_corr(c.adaptation), c.estimator)
         self.gate = FreeMotionGate(c.gate)
-        self.guard = self._calibration_guard(free_space)
-        self._guard_refuses = (self.guard is not None
-                               and c.calibration_guard.action == "refuse")
+        self.guard = CalibrationGuard.build(c, free_space)
+        self._guard_refuses = self.guard is not None and self.guard.refuses
         self.drift = ResidualDriftDetector(np.asarray(c.gate.min_std), c.drift)
         adapt = c.adaptation.enabled and self.policy != "frozen"
         self.backend = (backend if backend is not None else InlineAdaptation(
@@ -84,9 +80,7 @@ class ArmPipeline:
         self.model_validation: float | None = None
         self._last_ns: int | None = None
         self._behind = 0                      # consecutive samples stamped before the last
-        self._pending: deque[tuple[float, np.ndarray, np.ndarray, np.ndarray]] = deque()
-        self._times: deque[float] = deque(maxlen=8192)   # times of the last estimated samples
-        self._index = 0
+        self.line = DelayLine(c.policy)
         self.validator = SampleValidator(c.validation)
         self._adapt_until = -np.inf           # drift-triggered: adapt only after a drift
         self._next_reset: float | None = None
@@ -94,21 +88,6 @@ class ArmPipeline:
         self._was_contact = False
         self._last_setup: dict[str, Any] | None = None
         self.body_wall: list[float | None] = []    # stiffness per segment, the last round's
-
-    def _calibration_guard(self, free_space: FreeSpaceModel) -> FreeMotionGate | None:
-        """The calibration's contact check, or None (off, no calibration, no known scale)."""
-        g = self.config.calibration_guard
-        scale = g.residual_scale
-        if scale is None:
-            scale = getattr(free_space, "validation_rmse", None)
-        if not g.enabled or scale is None or self.config.calibration_s <= 0:
-            return None
-        if len(scale) != N_JOINTS:
-            raise ConfigError(f"calibration_guard.residual_scale needs {N_JOINTS} values, "
-                              f"got {len(scale)}")
-        guard = FreeMotionGate(self.config.gate)
-        guard.seed(g.scale_factor * np.asarray(scale, dtype=float))
-        return guard
 
     # -- validation ---------------------------------------------------------------------
     def _error(self, t: float, kind: str, reason: str) -> Event:
@@ -236,18 +215,16 @@ class ArmPipeline:
                gap_s: float | None) -> tuple[Estimate | None, list[Event]]:
         """Everything after the estimator for one sample: gate, drift, offer (not adaptation)."""
         if events and events[-1].kind == "clock_reset":
-            self._pending.clear()
+            self.line.clear()
         if gap_s is not None:
             self.counters.gaps += 1
-            self._pending.clear()                      # the delay line spans no gap
+            self.line.clear()                          # the delay line spans no gap
             events.append(Event(t, "gap", {"arm": self.arm, "gap_s": gap_s}))
         # a non-finite value makes the sum non-finite; a finite sum can only overflow (then
         # the exact check decides): six Python floats add faster than NumPy checks six values
         if not math.isfinite(sum(out.wrench.tolist())) and not np.isfinite(out.wrench).all():
             return None, events + [self._error(t, "non_finite_output", "estimate not finite")]
-        index = self._index
-        self._index += 1
-        self._times.append(t)
+        index = self.line.estimated_at(t)
         self.counters.estimated += 1
         decision = self.gate.update(index, t, out.external_torque)
         calibrating = self._calibrating(t, events)
@@ -274,18 +251,14 @@ class ArmPipeline:
 
     def _calibration_decision(self, index: int, t: float, out, effort: np.ndarray,
                               score: float) -> GateDecision:
-        """A calibration sample's verdict: the guard's on the step-1 residual (free unless
-        there is no guard); ``score`` stays the main gate's."""
+        """A calibration sample's verdict: the guard's (free unless there is no guard)."""
         self.counters.calibration_samples += 1
         if self.guard is None:
             return GateDecision(True, score, -1, trainable=True)
-        g = self.guard.update(index, t, effort - out.step1_torque)
-        if not g.free:
+        decision = self.guard.judge(index, t, effort - out.step1_torque, score)
+        if not self.guard.last_free:
             self.counters.calibration_contact += 1
-        if not self._guard_refuses:
-            return GateDecision(True, score, -1, trainable=True)
-        trainable = g.free if self.config.calibration_guard.borderline_trains else g.trainable
-        return GateDecision(g.free, score, g.contact_started, trainable=trainable)
+        return decision
 
     def _calibrating(self, t: float, events: list[Event]) -> bool:
         if self._calibration_end is None:
@@ -343,51 +316,15 @@ class ArmPipeline:
         if self.policy == "drift-triggered" and t > self._adapt_until and not calibrating:
             return
         if self.policy == "ungated" or (calibrating and not self._guard_refuses):
-            self.counters.offered += 1
-            stamps = np.array([t])
-            self.backend.offer(out.window[None], out.step1_torque[None], effort[None], stamps)
-            if self.on_offer is not None:
-                self.on_offer(stamps)
+            now = [(t, out.window, out.step1_torque, effort)]
+            self.counters.offered += offer_rows(self.backend, now, self.on_offer)
             return
         if not free:
-            self._drop_onset(contact_started)
+            self.counters.discarded_onsets += self.line.drop_onset(contact_started)
             return
         if trainable:                   # a free but borderline sample is skipped, not trusted
-            self._pending.append((t, out.window, out.step1_torque, effort.copy()))
-        delay = self.config.policy.release_delay_s
-        ready = []
-        while self._pending and t - self._pending[0][0] >= delay:
-            ready.append(self._pending.popleft())
-        if len(ready) == 1:                  # the usual case: one in, one out; no copies
-            t_ready, window, step1, measured = ready[0]
-            self.counters.offered += 1
-            stamps = np.array([t_ready])
-            self.backend.offer(window[None], step1[None], measured[None], stamps)
-            if self.on_offer is not None:
-                self.on_offer(stamps)
-        elif ready:
-            self.counters.offered += len(ready)
-            stamps = np.array([r[0] for r in ready])
-            self.backend.offer(np.stack([r[1] for r in ready]), np.stack([r[2] for r in ready]),
-                               np.stack([r[3] for r in ready]), stamps)
-            if self.on_offer is not None:
-                self.on_offer(stamps)
-
-    def _drop_onset(self, contact_started: int) -> None:
-        """Drop the waiting samples that may belong to the contact the gate is in: from
-        ``onset_margin_s`` before its onset on (all of them when the onset is unknown)."""
-        pending = self._pending
-        if not pending:
-            return
-        first = self._index - len(self._times)            # index of the oldest time kept
-        if contact_started < first:
-            cutoff = -np.inf
-        else:
-            cutoff = self._times[contact_started - first] - self.config.policy.onset_margin_s
-        n = len(pending)
-        while pending and pending[-1][0] >= cutoff:
-            pending.pop()
-        self.counters.discarded_onsets += n - len(pending)
+            self.line.push(t, out.window, out.step1_torque, effort)
+        self.counters.offered += offer_rows(self.backend, self.line.release(t), self.on_offer)
 
     def _adapt(self, t: float) -> list[Event]:
         if self.backend is None:
@@ -425,7 +362,7 @@ class ArmPipeline:
         ``validation.setup_ahead_s`` after the latest sample, is refused with an error
         event."""
         detail = dict(detail or {})
-        last = self._times[-1] if self._times else None
+        last = self.line.last_t
         if t is None:
             if last is None:
                 return [self.refuse_setup(0.0, "a set-up change before the first sample "

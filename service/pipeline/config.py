@@ -6,7 +6,7 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from wrenchd.models.adaptation.adapter import AdaptationConfig
+from wrenchd.models.adaptation import AdaptationConfig
 from wrenchd.models.drift_detector import DriftConfig
 from wrenchd.models.estimator.estimator import EstimatorConfig
 from wrenchd.models.gate import GateConfig

@@ -24,7 +24,8 @@ from wrenchd.service.replay.policies import get_policy
 from wrenchd.service.replay.loop import replay
 from wrenchd.service.replay.metrics import free_error_series, replay_metrics
 from wrenchd.service.replay.output import nan_to_none
-from wrenchd.service.replay.source import drift_onsets, load_session
+from wrenchd.models.physics.effects.drift import drift_onsets
+from wrenchd.service.replay.source import load_session
 
 
 def _slug(spec: str) -> str:

@@ -40,7 +40,7 @@ from wrenchd.models.estimator.estimator import EstimatorOutput, TwoStepEstimator
 from wrenchd.models.estimator.features import segment_starts
 from wrenchd.models.estimator.free_space import FreeSpaceModel
 from wrenchd.models.series import N_JOINTS, Session
-from wrenchd.models.adaptation.adapter import normalisation_of
+from wrenchd.models.adaptation import normalisation_of
 from wrenchd.service.pipeline import ArmPipeline, Event, PipelineConfig
 from wrenchd.service.pipeline.validation import accepted_indices
 from wrenchd.service.replay.source import joint_state_messages
@@ -235,7 +235,8 @@ class ReplayResult:
 
     Arrays: ``t`` (N,) [s], ``stamp_ns`` (N,), ``wrench`` (N, 6) [N, N m], ``external``
     and ``predicted`` (N, 6) [N m; N], ``free`` (N,), ``score`` (N,) [std], ``model_version``
-    (N,), ``sample`` (N,) index of each row in the session.
+    (N,), ``restarted`` (N,) the estimator's state restarted there (a segment's first
+    sample), ``sample`` (N,) index of each row in the session.
     """
 
     t: np.ndarray
@@ -247,6 +248,7 @@ class ReplayResult:
     free: np.ndarray
     score: np.ndarray
     model_version: np.ndarray
+    restarted: np.ndarray
     events: list[Event]
     offered_t: np.ndarray
     status: dict[str, Any]
@@ -326,7 +328,7 @@ def _run(pipeline: ArmPipeline, session: Session, msgs, config: PipelineConfig, 
         pipeline_hook(pipeline)
     n = len(msgs)
     wrench, external, predicted = (np.zeros((n, N_JOINTS)) for _ in range(3))
-    free, score = np.zeros(n, dtype=bool), np.zeros(n)
+    free, score, restarted = np.zeros(n, dtype=bool), np.zeros(n), np.zeros(n, dtype=bool)
     version, stamp, sample = (np.zeros(n, dtype=np.int64) for _ in range(3))
     events: list[Event] = []
     k = 0
@@ -346,6 +348,7 @@ def _run(pipeline: ArmPipeline, session: Session, msgs, config: PipelineConfig, 
         external[k:b] = np.concatenate([e.external_torque for e in ests]).reshape(m, N_JOINTS)
         predicted[k:b] = np.concatenate([e.predicted_torque for e in ests]).reshape(m, N_JOINTS)
         free[k:b] = [e.free for e in ests]
+        restarted[k:b] = [e.restarted for e in ests]
         score[k:b] = [e.score for e in ests]
         version[k:b] = [e.model_version for e in ests]
         stamp[k:b] = [e.stamp_ns for e in ests]
@@ -377,7 +380,7 @@ def _run(pipeline: ArmPipeline, session: Session, msgs, config: PipelineConfig, 
     return ReplayResult(
         t=stamp[:k] / 1e9, stamp_ns=stamp[:k], sample=sample[:k], wrench=wrench[:k],
         external=external[:k], predicted=predicted[:k], free=free[:k], score=score[:k],
-        model_version=version[:k], events=events,
+        model_version=version[:k], restarted=restarted[:k], events=events,
         offered_t=np.concatenate(offered) if offered else np.zeros(0),
         status=status, config=config.model_dump(mode="json"),
         policy=policy or config.policy.name, wall_s=wall, samples_in=n,

@@ -24,7 +24,7 @@ import numpy as np
 
 from wrenchd.models.series import Session
 from wrenchd.service.replay.loop import ReplayResult
-from wrenchd.service.replay.source import drift_onsets
+from wrenchd.models.physics.effects.drift import drift_onsets
 
 PRE_S, ROLL_S, RECOVER_FRACTION = 30.0, 5.0, 0.10
 

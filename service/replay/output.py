@@ -14,17 +14,10 @@ import os
 import numpy as np
 from mcap.writer import CompressionType, Writer
 
-from wrenchd.adapters.mcap_log import ESTIMATE_SCHEMA, EVENT_SCHEMA, TOPIC_ESTIMATE, TOPIC_EVENTS
+from wrenchd.adapters.mcap_log import (ESTIMATE_SCHEMA, EVENT_SCHEMA, TOPIC_ESTIMATE, TOPIC_EVENTS,
+                                       estimate_record)
 from wrenchd.models.errors import AdapterError
 from wrenchd.service.replay.loop import ReplayResult
-
-_V = "[" + ",".join(["%.10g"] * 6) + "]"
-_TEMPLATE = ('{"header":{"stamp":{"sec":%d,"nanosec":%d},"frame_id":"psm_base"},'
-             '"wrench":{"force":{"x":%.10g,"y":%.10g,"z":%.10g},'
-             '"torque":{"x":%.10g,"y":%.10g,"z":%.10g}},'
-             '"free":%s,"score":%.10g,"model_version":%d,"restarted":false,'
-             '"predicted":' + _V + ',"external":' + _V + '}')
-
 
 def write_replay_mcap(path: str | os.PathLike[str], r: ReplayResult,
                       metadata: dict | None = None) -> None:
@@ -55,11 +48,10 @@ def write_replay_mcap(path: str | os.PathLike[str], r: ReplayResult,
                 while ei < len(events) and events[ei][0] <= s:
                     _event(w, ids[TOPIC_EVENTS], events[ei])
                     ei += 1
-                payload = _TEMPLATE % (s // 1_000_000_000, s % 1_000_000_000,
-                                       *r.wrench[k], "true" if r.free[k] else "false",
-                                       score[k], r.model_version[k], *r.predicted[k],
-                                       *r.external[k])
-                w.add_message(ids[TOPIC_ESTIMATE], s, payload.encode(), s)
+                payload = estimate_record(s, "psm_base", r.wrench[k], r.free[k], score[k],
+                                          r.model_version[k], r.restarted[k], r.predicted[k],
+                                          r.external[k])
+                w.add_message(ids[TOPIC_ESTIMATE], s, payload, s)
             for ev in events[ei:]:
                 _event(w, ids[TOPIC_EVENTS], ev)
             w.finish()

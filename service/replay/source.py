@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from wrenchd.models.errors import ConfigError
+from wrenchd.models.physics.effects.drift import drift_onsets
 from wrenchd.models.series import JointSample, JointStates, Session
 
 
@@ -69,28 +70,6 @@ def joint_state_messages(js: JointStates) -> list[JointSample]:
     names = tuple(js.names)
     return [JointSample(s, "", names, p, v, e)
             for s, p, v, e in zip(stamps, js.position, js.velocity, js.effort)]
-
-
-def drift_onsets(session: Session) -> list[tuple[str, float, float | None]]:
-    """Set-up changes the session's metadata announces: (id, start [s], end [s] or None).
-
-    Reads the ``drift`` effects of the simulator's physics model (step: end None; ramp: end).
-    Sessions without them (real data, daemon logs) give an empty list.
-    """
-    physics = session.metadata.get("physics_model") or {}
-    effects = physics.get("effects", []) if isinstance(physics, dict) else []
-    out = []
-    for spec in effects:
-        if spec.get("name") != "drift" or spec.get("enabled") is False:
-            continue
-        params = spec.get("params", {})
-        start = params.get("t_start_s")
-        if start is None:
-            continue
-        end = params.get("t_end_s") if params.get("kind") == "ramp" else None
-        out.append((str(spec.get("id") or params.get("target")), float(start),
-                    None if end is None else float(end)))
-    return sorted(out, key=lambda d: d[1])
 
 
 def announced_changes(session: Session) -> list[tuple[float, dict]]:

@@ -28,21 +28,18 @@ from typing import Any, Callable
 import numpy as np
 
 from wrenchd.models.series import N_JOINTS
-from wrenchd.models.adaptation.adapter import AdaptationConfig, RoundResult
+from wrenchd.models.adaptation import AdaptationConfig, RoundResult
 
 CHUNK_S = 0.25          # the pipeline sends its calls at least every this much sample time [s]
-
-
-# The calls of a chunk, packed: the offered rows stacked in one float32 array, and per other
-# call (tick, drift, reset) its kind, time and how many of the rows were offered before it.
-OFFER_ROWS, TICK, DRIFT, RESET, SETUP = 0, 1, 2, 3, 4
+ARM = "replay"          # the one arm of a replay worker
 
 
 def _serve(conn, config: dict[str, Any], normalisation: dict[str, np.ndarray] | None) -> None:
-    """Worker main: replay the pipeline's calls on an Adapter; answer rounds and progress."""
-    from wrenchd.models.adaptation.adapter import Adapter
+    """Worker main: replay the pipeline's calls on the shared adaptation host, in sample time;
+    answer rounds and progress."""
+    from wrenchd.models.adaptation.host import AdapterHost
 
-    adapter = Adapter(AdaptationConfig(**config), normalisation=normalisation)
+    host = AdapterHost({ARM: AdaptationConfig(**config)}, {ARM: normalisation})
     try:
         while True:
             chunk = conn.recv()
@@ -53,21 +50,15 @@ def _serve(conn, config: dict[str, Any], normalisation: dict[str, np.ndarray] | 
             a = 0
             for kind, t, count in zip(kinds, times, counts):
                 if count:               # the rows offered before this call, in one add
-                    adapter.add_rows(rows[a:a + count], stamps[a:a + count])
+                    host.call(ARM, "rows", t, (rows[a:a + count], stamps[a:a + count]))
                     a += count
-                if kind == TICK:
-                    result = adapter.round(t)
+                result = host.call(ARM, kind, t, t)      # a set-up change's time is its own
+                if kind == "tick":
                     done = t
                     if result is not None:   # at once: the pipeline may be waiting for it
                         conn.send(("round", done, [result]))
-                elif kind == DRIFT:
-                    adapter.on_drift(t)
-                elif kind == SETUP:
-                    adapter.on_setup_change(t)
-                elif kind == RESET:
-                    adapter = Adapter(adapter.config, normalisation=adapter.normalisation)
             if tail:
-                adapter.add_rows(rows[a:a + tail], stamps[a:a + tail])
+                host.call(ARM, "rows", done, (rows[a:a + tail], stamps[a:a + tail]))
             conn.send(("chunk", done, []))
     except Exception:  # noqa: BLE001 - reported to the pipeline, which raises it
         conn.send(("error", traceback.format_exc(limit=8), []))
@@ -76,7 +67,7 @@ def _serve(conn, config: dict[str, Any], normalisation: dict[str, np.ndarray] | 
 
 
 class WorkerAdaptation:
-    """:class:`~wrenchd.service.pipeline.arm.AdaptationBackend` for replay with the Adapter in a forked
+    """:class:`~wrenchd.service.pipeline.adaptation.AdaptationBackend` for replay with the Adapter in a forked
     process (see the module docstring).
 
     Args:
@@ -108,7 +99,7 @@ class WorkerAdaptation:
         self._offered: tuple[list[np.ndarray], ...] = ([], [], [], [])   # ..., sample times
         self._n_rows = 0                        # rows offered in this chunk
         self._pending = 0                       # of which offered since the last call
-        self._kinds: list[int] = []
+        self._kinds: list[str] = []
         self._times: list[float] = []
         self._counts: list[int] = []
         self._chunk_t0: float | None = None
@@ -151,25 +142,25 @@ class WorkerAdaptation:
             part.clear()
         return rows, stamps
 
-    def _call(self, kind: int, t: float) -> None:
+    def _call(self, kind: str, t: float) -> None:
         self._kinds.append(kind)
         self._times.append(t)
         self._counts.append(self._pending)
         self._pending = 0
 
     def drift(self, t: float) -> None:
-        self._call(DRIFT, t)
+        self._call("drift", t)
 
     def setup_change(self, t: float) -> None:
-        self._call(SETUP, t)
+        self._call("setup", t)
 
     def reset(self, t: float) -> None:
-        self._call(RESET, t)
+        self._call("reset", t)
         self._reset_t = t
         self._ready = [r for r in self._ready if r.t > t]     # nothing from before the reset
 
     def tick(self, t: float) -> list[RoundResult]:
-        self._call(TICK, t)
+        self._call("tick", t)
         if self._chunk_t0 is None:
             self._chunk_t0 = t
         if t - self._chunk_t0 >= CHUNK_S:

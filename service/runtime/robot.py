@@ -22,7 +22,7 @@ from wrenchd.adapters.sim.scenarios import run_scenario
 from wrenchd.adapters.sim.simulator import SimulatorConfig
 from wrenchd.adapters.messages import encode_joint_state, encode_setup_change, stamp_ns_of
 from wrenchd.adapters.zenoh_io import ZenohConfig, open_session, wait_for_subscriber
-from wrenchd.service.replay.source import drift_onsets
+from wrenchd.models.physics.effects.drift import drift_onsets
 
 BLOCK_S = 120.0
 CONTACT_FREE_START_S = 60.0     # the daemon's default calibration_s

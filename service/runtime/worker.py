@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from wrenchd.models.adaptation.adapter import AdaptationConfig, RoundResult
+from wrenchd.models.adaptation import AdaptationConfig, RoundResult
 
 _BATCH_S = 0.2          # pipelines send their samples at least this often [s]
 _POLL_S = 0.02          # and look for round results at most this often [s]: polling the
@@ -41,7 +41,7 @@ def _run(inbox: mp.Queue, outbox: mp.Queue, configs: dict[str, dict[str, Any]],
     if cpus is not None:
         os.sched_setaffinity(0, cpus)
     from wrenchd.models.estimator.checkpoint import save_checkpoint
-    from wrenchd.models.adaptation.adapter import Adapter
+    from wrenchd.models.adaptation.host import AdapterHost
     from wrenchd.service.runtime.scheduling import normal_scheduling, one_compute_thread
 
     one_compute_thread()          # a spawned process: NumPy's BLAS would start one per core
@@ -56,8 +56,8 @@ def _run(inbox: mp.Queue, outbox: mp.Queue, configs: dict[str, dict[str, Any]],
     except OSError:
         pass
     parent = os.getppid()
-    adapters = {arm: Adapter(AdaptationConfig(**cfg), normalisation=normalisations.get(arm))
-                for arm, cfg in configs.items()}
+    host = AdapterHost({arm: AdaptationConfig(**cfg) for arm, cfg in configs.items()},
+                       normalisations)
     t0 = time.monotonic()
     busy_until = 0.0
     while True:
@@ -78,28 +78,13 @@ def _run(inbox: mp.Queue, outbox: mp.Queue, configs: dict[str, dict[str, Any]],
         for kind, arm, payload in messages:
             if kind == "stop":
                 return
-            if arm not in adapters:
-                continue
-            if kind == "samples":
-                adapters[arm].add(*payload)
-            elif kind == "drift":
-                adapters[arm].on_drift(now)
-            elif kind == "setup":                  # payload: the change's sample time [s]
-                adapters[arm].on_setup_change(payload, now)
-            elif kind == "reset":
-                adapters[arm] = Adapter(adapters[arm].config,
-                                        normalisation=adapters[arm].normalisation)
-            elif kind == "fail":                   # fault injection (tests): next round throws
-                adapters[arm].fail_next = True
+            host.call(arm, kind, now, payload)
         if time.monotonic() < busy_until:
             continue
-        for arm, adapter in adapters.items():
+        for arm in host.arms:
             start = time.monotonic()
             try:
-                if getattr(adapter, "fail_next", False):
-                    adapter.fail_next = False
-                    raise RuntimeError("injected adaptation failure")
-                result = adapter.round(time.monotonic() - t0)
+                result = host.call(arm, "tick", time.monotonic() - t0)
             except Exception:  # noqa: BLE001 - reported; the last good model keeps serving
                 outbox.put(("error", arm, traceback.format_exc(limit=5)))
                 continue
@@ -109,7 +94,7 @@ def _run(inbox: mp.Queue, outbox: mp.Queue, configs: dict[str, dict[str, Any]],
                 try:
                     path = Path(models_dir) / arm / f"corr-v{result.version:04d}.pt"
                     path.parent.mkdir(parents=True, exist_ok=True)
-                    save_checkpoint(path, adapter.corr,
+                    save_checkpoint(path, host.adapters[arm].corr,
                                     data={"source": "wrenchd lifelong adaptation", "arm": arm},
                                     validation=result.summary())
                 except OSError as exc:
@@ -205,7 +190,7 @@ class _Rows:
 
 
 class ProcessAdaptation:
-    """:class:`~wrenchd.service.pipeline.arm.AdaptationBackend` of one arm, backed by the worker process."""
+    """:class:`~wrenchd.service.pipeline.adaptation.AdaptationBackend` of one arm, backed by the worker process."""
 
     def __init__(self, worker: WorkerProcess, arm: str) -> None:
         self.worker, self.arm = worker, arm

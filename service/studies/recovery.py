@@ -92,7 +92,7 @@ def run_recovery(seeds: list[int], settings: list[str], duration_s: float = 220.
     import numpy as np
 
     from wrenchd.adapters.sim.scenarios import run_scenario
-    from wrenchd.service.runtime.daemon import load_free_space
+    from wrenchd.service.pipeline.step1 import load_free_space
     from wrenchd.service.replay.loop import replay
     from wrenchd.service.replay.metrics import free_error_series, recovery_levels
     from wrenchd.service.replay.source import announced_changes

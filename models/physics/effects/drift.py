@@ -84,3 +84,26 @@ class Drift(Effect):
             raise ConfigError(f"drift on {self.params.target!r} is not bound to its target")
         drifted = self.target.torque(motion, {self.params.param: self.scaled_parameter(motion.t)})
         return drifted - self.target.torque(motion)
+
+
+def drift_onsets(session) -> list[tuple[str, float, float | None]]:
+    """Set-up changes a session's metadata announces (a :class:`~wrenchd.models.series.Session`):
+    (id, start [s], end [s] or None).
+
+    Reads the ``drift`` effects of the simulator's physics model (step: end None; ramp: end).
+    Sessions without them (real data, daemon logs) give an empty list.
+    """
+    physics = session.metadata.get("physics_model") or {}
+    effects = physics.get("effects", []) if isinstance(physics, dict) else []
+    out = []
+    for spec in effects:
+        if spec.get("name") != "drift" or spec.get("enabled") is False:
+            continue
+        params = spec.get("params", {})
+        start = params.get("t_start_s")
+        if start is None:
+            continue
+        end = params.get("t_end_s") if params.get("kind") == "ramp" else None
+        out.append((str(spec.get("id") or params.get("target")), float(start),
+                    None if end is None else float(end)))
+    return sorted(out, key=lambda d: d[1])

@@ -1,0 +1,79 @@
+"""The adaptation's settings and what one fine-tuning round reports."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from wrenchd.models.body_wall_tracker import BodyWallTrackerConfig
+from wrenchd.models.estimator.correction import CorrKernel
+
+
+class AdaptationConfig(BaseModel):
+    """How the correction net follows the set-up."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    enabled: bool = True
+    recent_size: int = Field(default=3000, ge=16, description="recent ring [samples]")
+    reservoir_size: int = Field(default=6000, ge=0, description="older samples kept [samples]")
+    recent_fraction: float = Field(default=0.6, ge=0.0, le=1.0,
+                                   description="share of a batch drawn from the recent ring")
+    holdout_every: int = Field(default=5, ge=2, description="every k-th sample validates")
+    holdout_size: int = Field(default=800, ge=16, description="recent held-out samples")
+    min_train_samples: int = Field(default=600, ge=16,
+                                   description="samples before the first round")
+    round_steps: int = Field(default=40, ge=1, description="Adam steps per round")
+    batch_size: int = Field(default=128, ge=1)
+    lr: float = Field(default=2e-3, gt=0.0, description="Adam learning rate")
+    weight_decay: float = Field(default=0.01, ge=0.0, description="L2 penalty (paper's Corr)")
+    min_improvement: float = Field(default=0.005, ge=0.0, lt=1.0,
+                                   description="relative validation gain needed to swap")
+    interval_s: float = Field(default=2.0, gt=0.0, description="time between rounds [s]")
+    eager_interval_s: float = Field(default=0.5, gt=0.0,
+                                    description="time between rounds after a drift [s]")
+    eager_s: float = Field(default=30.0, ge=0.0, description="eager period after a drift [s]")
+    hidden_size: int = Field(default=64, ge=1, description="Corr hidden units (paper: 256)")
+    window: int = Field(default=10, ge=1, description="Corr history window (paper: 10)")
+    max_cpu_fraction: float = Field(default=0.5, gt=0.0, le=1.0,
+                                    description="duty cycle of the daemon's worker process")
+    refit_shrink: float = Field(
+        default=0.3, ge=0.0,
+        description="ridge weight of the output-layer refit on the recent ring, towards the "
+                    "current weights, as a multiple of the mean diagonal of the hidden "
+                    "features' Gram matrix [-]; 0 = no refit (module docstring)")
+    seed: int = 0
+    body_wall: BodyWallTrackerConfig = Field(
+        default_factory=BodyWallTrackerConfig,
+        description="the body wall's stiffness tracking and the carry-over at an announced "
+                    "set-up change")
+
+
+@dataclass
+class RoundResult:
+    """What one round did; ``accepted`` rounds carry the new version."""
+
+    t: float
+    accepted: bool
+    version: int
+    val_before: float
+    val_after: float
+    n_train: int
+    n_holdout: int
+    eager: bool
+    state_dict: dict[str, np.ndarray] | None = None
+    #: the accepted net's serving kernel, built where the round ran (the adaptation worker),
+    #: so the process that serves swaps a reference instead of building a module
+    kernel: CorrKernel | None = None
+    #: the body wall's stiffness [N/m] per segment between announced set-up changes, as the
+    #: tracker estimates it (None: no bin yet); one entry until a change is announced
+    body_wall: list[float | None] = field(default_factory=list)
+
+    def summary(self) -> dict[str, Any]:
+        return {"t": self.t, "accepted": self.accepted, "version": self.version,
+                "val_before": self.val_before, "val_after": self.val_after,
+                "n_train": self.n_train, "n_holdout": self.n_holdout, "eager": self.eager,
+                "body_wall_n_per_m": self.body_wall}
