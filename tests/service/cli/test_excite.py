@@ -1,9 +1,8 @@
-"""``wrenchd excite`` through its own parser: the CSV, the ROS 2 bag (read by rosbags) and the
+"""``wrenchd excite`` through the wrenchd command line's parser: the CSV, the ROS 2 bag (read by rosbags) and the
 JSON agree, the set-points respect the limits, and the printed condition number fell."""
 
 from __future__ import annotations
 
-import argparse
 import json
 import re
 
@@ -14,13 +13,11 @@ from rosbags.typesys import Stores, get_typestore
 
 from wrenchd.models.errors import ConfigError
 from wrenchd.models.identification.excitation import ExcitationConfig
-from wrenchd.service.cli import excite
+from wrenchd.service.cli import build_parser
 
 
 def _run(argv: list[str]) -> int:
-    parser = argparse.ArgumentParser(prog="wrenchd")
-    excite.register(parser.add_subparsers(dest="command", required=True))
-    args = parser.parse_args(["excite", *argv])
+    args = build_parser().parse_args(["excite", *argv])
     return args.func(args)
 
 
