@@ -8,8 +8,8 @@ Reconnection: a session whose router or peer goes away keeps its subscribers, pu
 queryables and liveliness tokens and re-declares them when the link comes back; zenoh retries
 each ``connect`` endpoint with a growing wait (``retry_period_*``). zenoh's own defaults
 (1 s growing to 4 s) mean up to ~4 s of silence after a router restart; wrenchd retries every
-0.25 s growing to 1 s (measured on loopback, zenoh 1.10: wrenches flow again within about a
-second of a killed router's restart; ``tests/service/test_zenoh_restart.py``). A client opens
+0.25 s growing to 1 s, so wrenches flow again within about a second of a router's restart
+(``tests/service/runtime/test_zenoh_restart.py`` kills and restarts one). A client opens
 only if its router answers within ``connect_timeout_ms`` (zenoh's default for clients: try
 once, fail at once); a peer opens at once and connects when the other side appears.
 """
