@@ -2,13 +2,14 @@
 
 Why: after an announced set-up change (the insufflator's pressure set higher, say), the
 adaptation's replay buffer still holds the old set-up's torques; every mini-batch pulls the
-correction net back towards them (measured in the README, "Insufflation recovery"). The body
-wall at the port is the effect insufflation changes (:mod:`wrenchd.models.physics.effects.body_wall`):
-a lateral spring on the shaft whose stiffness ``k`` [N/m] rises with the pressure. Its torque
-on yaw and pitch is ``k g(q)``, with ``g`` the torque per N/m at the incision point (plus a
-damping term ``c h(q, dq)``). So once the stiffness before and after the change is known,
-every older buffered sample can be *carried over*: its measured yaw and pitch torques get
-``(k_after - k_before) g(q)`` added, and the whole buffer speaks for the new set-up.
+correction net back towards them (docs/replay-and-policies.md, "What limits recovery"). The
+body wall at the port is the effect insufflation changes
+(:mod:`wrenchd.models.physics.effects.body_wall`): a lateral spring on the shaft whose
+stiffness ``k`` [N/m] rises with the pressure. Its torque on yaw and pitch is ``k g(q)``, with
+``g`` the torque per N/m at the incision point (plus a damping term ``c h(q, dq)``). So once
+the stiffness before and after the change is known, every older buffered sample can be *carried
+over*: its measured yaw and pitch torques get ``(k_after - k_before) g(q)`` added, and the
+whole buffer speaks for the new set-up.
 
 How ``k`` is measured: on the *step-1* residual (measured torque minus the free-space network's
 prediction), which still holds the whole body wall (the correction net's residual does not: it
@@ -18,15 +19,13 @@ regressed on ``[g, h, 1_yaw, 1_pitch]`` (stiffness, damping, one offset per join
 free-space net's local bias); the bin's ``k`` is the first coefficient. A segment (the time
 between announced changes) is worth one fit over its bins, stiffness and damping shared and
 offsets per bin, so a bin that saw little free motion (the gate calls much of the motion just
-after a change contact) weighs little. On the simulator's ``insufflation-change`` (truth
-580 -> 900 N/m), 10 s bins read ~690 -> ~1 050 N/m with a spread of ~80-150 N/m between
-bins: the level is biased by the free-space net's misfit, the step much less (a scratch
-measurement, described in issue 4's notes).
+after a change contact) weighs little. The bins' level is biased by the free-space net's
+misfit, their step much less, and the carry-over uses only the step.
 
 The change must be *announced* (:meth:`BodyWallTracker.announce`: the daemon's ``setup``
-key). Finding it from the series alone was tried and does not work: bins vary with the
-workspace by as much as the step (false alarms on unchanged sessions, 20-40 s late on
-changed ones).
+key). Finding it from the series alone does not work: bins vary with the workspace by as
+much as the step, so a search for it raises false alarms on unchanged sessions and finds real
+changes tens of seconds late.
 
 A notice should come before the samples after its time reach the tracker (the pipeline's
 delay line gives it a few seconds). One that comes later, or stamped in the past, drops the
@@ -34,10 +33,9 @@ old segment's bins that reach past its time (they mixed the two set-ups); a noti
 an earlier one moves the later segments up by one.
 
 Pure: arrays in, arrays out. The incision point is a setting, by default the body wall
-effect's (``BodyWallParams.incision_m``), which on the simulator is the truth. Wrong by 5-10
-mm, the recovery target was still met on the seeds measured (README, "Insufflation
-recovery"): the stiffness fit absorbs much of the error. On a real set-up it would come from
-the port placement or from the discrepancy workflow.
+effect's (``BodyWallParams.incision_m``), which on the simulator is the truth. An incision
+point a few mm off does little harm: the stiffness fit absorbs much of the error. On a real
+set-up it comes from the port placement or from the discrepancy workflow.
 """
 
 from __future__ import annotations

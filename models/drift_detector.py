@@ -12,9 +12,8 @@ Two rules keep contacts out of it, like the training delay line does for the ada
 levels wait ``delay_s`` before they reach the detector, and a hole in the stream of free
 samples longer than ``hole_s`` (the gate called a contact, or the data stopped) discards the
 levels still waiting: the onset of a contact, before the gate saw it, would otherwise look
-like a rise of the free-motion level (measured on ``insufflation-change`` seed 3: all three
-detections of the old detector were contact onsets, at 85.8, 124.2 and 181.9 s, none the
-pressure step at 88 s).
+like a rise of the free-motion level (without these rules, contact onsets, not the
+pressure step, raise the detections on ``insufflation-change``).
 
 Cost: levels are averaged over ``block`` samples and the river detector sees the block means
 (its threshold and minimum count are given per sample and scaled to blocks), a few

@@ -9,12 +9,11 @@ by it (``z_j = r_j / scale_j``). Two scores, two ways into a contact:
 * the **peak** score ``max_j |z_j|``: a contact that loads one joint hard (a push along the
   shaft) starts when it exceeds ``enter_sigma`` on ``enter_samples`` consecutive samples;
 * the **joint** score ``sqrt(mean_j z_j^2)``: a weak contact loads several joints at once,
-  each under the peak bound (measured on ``insufflation-change`` seed 3: a 2.8 N lateral
-  grasp at shallow insertion put joints 2, 4, 5 and 6 at 2-3 scale units for 1.5 s and was
-  never detected by the peak score; all 106 of that run's contact samples offered to
-  training came from it). It starts a contact when it exceeds ``joint_sigma`` on
-  ``joint_samples`` consecutive samples. Free motion's model error is mostly in one joint
-  at a time, so the joint score stays low there (median 0.4, 99th percentile 1.95 on that run).
+  each under the peak bound (a lateral grasp of a few N at shallow insertion can hold four
+  joints at 2-3 scale units for over a second, unseen by the peak score). It starts a
+  contact when it exceeds ``joint_sigma`` on ``joint_samples`` consecutive samples. Free
+  motion's model error is mostly in one joint at a time, so the joint score stays low there
+  (mostly under 2).
 
 A contact ends when, for ``exit_s``, the peak score stays under ``exit_sigma`` and the joint
 score has not been over ``joint_exit_sigma`` for ``joint_samples`` samples in a row
@@ -23,18 +22,18 @@ length, not single samples, for the joint score, whose free-motion noise often e
 
 The statistics only learn from free samples scoring under ``learn_sigma``, and the scale may
 never grow beyond ``max_growth`` times its warm-up value, so a contact, even one that starts
-too gently to be seen, cannot widen the bounds that detect it (measured on the
-``insufflation-change`` scenario: without these two rules, contacts that slipped through
-widened the scale until 2-8 N contacts were called free). ``trainable`` is stricter than
-``free``: a free sample whose peak score is over ``train_sigma`` is published as free but kept
-out of training. The scale is centred on zero, not on a running mean, and slow (``alpha``: a
-time constant of tens of seconds): a contact's force builds up over a second or more, and a
-fast running mean would follow it up and never see it (measured: with a 2.5 s mean, 4-9 N
-contacts scored 2 sigma). A bias of the residual is the correction net's job, not the gate's.
-A floor ``min_std`` (per joint, N m or N) keeps the bounds from collapsing onto the noise of
-a perfectly adapted model. A gate stuck in contact for longer than ``max_contact_s`` is
-re-calibrated (its scale moves to the present residual): a lasting change of the set-up (a
-new insufflation pressure) must not look like an endless contact; the pipeline reports it.
+too gently to be seen, cannot widen the bounds that detect it (without these two rules,
+contacts that slip through widen the scale until contacts of several N are called free).
+``trainable`` is stricter than ``free``: a free sample whose peak score is over ``train_sigma``
+is published as free but kept out of training. The scale is centred on zero, not on a running
+mean, and slow (``alpha``: a time constant of tens of seconds): a contact's force builds up
+over a second or more, and a fast running mean would follow it up and never see it (with a
+2.5 s mean, contacts of several N score about 2 sigma). A bias of the residual is the correction
+net's job, not the gate's. A floor ``min_std`` (per joint, N m or N) keeps the bounds from
+collapsing onto the noise of a perfectly adapted model. A gate stuck in contact for longer than
+``max_contact_s`` is re-calibrated (its scale moves to the present residual): a lasting change
+of the set-up (a new insufflation pressure) must not look like an endless contact; the pipeline
+reports it.
 
 Cost: the squared residuals of learning samples are summed in NumPy and handed to the river
 statistics once per ``learn_block`` samples (as their mean, with the per-sample fading factor
@@ -264,8 +263,8 @@ class FreeMotionGate:
                 self._in_contact, self._above, self._joint_above = False, 0, 0
                 start, self._contact_start = self._contact_start, -1
                 # the first free sample is not trusted: it is the contact's last, and says
-                # where that contact began (a -1 here read as "onset unknown" made the
-                # pipeline drop its whole delay line at every contact's end)
+                # where that contact began (a -1 here would read as "onset unknown" and make
+                # the pipeline drop its whole delay line at every contact's end)
                 return GateDecision(False, score, start)
         else:
             self._below_since = None

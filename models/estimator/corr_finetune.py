@@ -2,8 +2,8 @@
 
 The lifelong adaptation runs rounds of a few dozen Adam steps on mini-batches of 128 rows
 through a net of 126 -> 64 -> 6 units. At that size torch's per-operator dispatch, autograd
-bookkeeping and optimizer wrapper cost far more than the arithmetic (measured ~1.4 ms per step
-on this machine, most of it outside the matmuls). The forward and backward pass of this one
+bookkeeping and optimizer wrapper cost far more than the arithmetic (most of a torch step's
+time is spent outside the matrix products). The forward and backward pass of this one
 architecture is a handful of matrix products, written out here; the update is torch's
 ``Adam`` with L2 ``weight_decay`` (Kingma and Ba 2015, as ``torch.optim.Adam`` implements it:
 ``g += wd * p``; bias-corrected moments; ``p -= lr / bc1 * m / (sqrt(v) / sqrt(bc2) + eps)``).

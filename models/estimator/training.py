@@ -68,10 +68,10 @@ RECIPES: dict[str, TrainConfig] = {
     "troc": TrainConfig(epochs=1000, lr_halving_epochs=125),
     "xfer": TrainConfig(epochs=1000, lr_halving_epochs=125),
     "corr": TrainConfig(epochs=400, lr_halving_epochs=None, weight_decay=0.01, batch_size=256),
-    # Adaptation in seconds on a CPU (deliverable 6 of issue 3): large batches, a ten times
-    # higher rate halved every 5 epochs, 16 epochs over a quarter of the samples each (the
-    # offset rotates, so 4 passes over the data in all), no early stop. Measured beside the
-    # paper's recipe in reports/paper-reproduction.
+    # A Corr in seconds on a CPU, for adaptation: large batches, a ten times higher rate
+    # halved every 5 epochs, 16 epochs over a quarter of the samples each (the offset
+    # rotates, so 4 passes over the data in all), no early stop. Compared with the paper's
+    # recipe in docs/results.md.
     "corr-fast": TrainConfig(epochs=16, lr=1e-2, lr_halving_epochs=5, weight_decay=0.01,
                              batch_size=1024, sample_stride=4, patience=None),
 }

@@ -105,7 +105,7 @@ class WrenchMap:
         jac = pin.computeFrameJacobian(kin.model, kin.data, q, kin.tip_id, pin.LOCAL_WORLD_ALIGNED)
         # Fast path, exact: J^-1 by LU. ||J^-1||_F >= ||J^-1||_2 = 1 / s_min, so
         # ||J^-1||_F <= 1 / threshold proves s_min >= threshold, where the damped map is the
-        # plain inverse w = J^-T tau. Measured ~3x cheaper than the SVD.
+        # plain inverse w = J^-T tau, ~3x cheaper than the SVD.
         _, _, inv, info = _gesv(jac, _EYE)
         if info == 0:
             flat = inv.ravel()

@@ -8,9 +8,9 @@ Modified DH (Craig): the transform from frame i-1 to frame i is
 offset replaces theta (revolute) or d (prismatic).
 
 Source of the table and limits: dVRK configuration ``psm-large-needle-driver.json``
-(jhu-dvrk/sawIntuitiveResearchKit, "DH" section, convention "modified") as restated in the
-wrenchd foundation issue. The base frame has its origin at the remote centre of motion (RCM):
-yaw and pitch axes pass through it and the instrument shaft always does.
+(jhu-dvrk/sawIntuitiveResearchKit, "DH" section, convention "modified"). The base frame has
+its origin at the remote centre of motion (RCM): yaw and pitch axes pass through it and the
+instrument shaft always does.
 
 Frames and Jacobians (pinocchio's conventions; twists are ``[v; w]``, linear first):
 

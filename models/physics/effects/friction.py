@@ -1,7 +1,7 @@
 """Free-space joint friction: Coulomb, viscous and Stribeck.
 
 Published free-space magnitudes (Wang et al., RA-L 2019, the WPI identification in
-``../shared/data/wpi-psm/identified_params.json``, restated in the foundation issue):
+``../shared/data/wpi-psm/identified_params.json``):
 yaw Fc 0.05 N m, Fv 0.09 N m s; pitch Fc 0.067 N m, Fv 0.22 N m s; insertion Fc 0.45 N,
 Fv 1.2 N s/m. Roll and wrist values are the same file's small wrist entries (order 0.002 to
 0.007 N m and N m s), rounded.
