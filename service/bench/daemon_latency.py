@@ -112,7 +112,7 @@ def _drain(stream, path: Path) -> threading.Thread:
 
     The daemon prints a status line per arm every second from its estimation thread; a pipe
     nobody reads is full after ~64 KB (about 11 minutes) and the next print, and with it
-    estimation, blocks (measured: a status line every 5 ms stalled it within seconds)."""
+    estimation, blocks (a status line every 5 ms stalls it within seconds)."""
     def copy() -> None:
         with open(path, "w") as sink:
             for line in stream:
@@ -136,8 +136,8 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
     is the daemon's ``[cpus] realtime_priority`` (``auto``, ``off`` or a SCHED_FIFO priority),
     and this process's publisher and subscriber take the same: a robot's publisher runs in the
     real-time class, and a bench left in the normal class would be measured waiting behind the
-    machine's other work (measured under load ~4: p99 6.3-11.7 ms with only the daemon
-    real-time, 3.2 ms with both). The floor bench runs in the normal class."""
+    machine's other work (under load, its p99 is several times the one with both in the
+    real-time class). The floor bench runs in the normal class."""
     from wrenchd.adapters.sim.scenarios import run_scenario
     from wrenchd.adapters.sim.simulator import SimulatorConfig
 
@@ -302,8 +302,8 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
     pooled = np.array(latencies) if latencies else np.array([np.nan])
     ticks = [(t, k) for t, k in steal if k is not None and t >= warmup_s]
     hz = ticks_per_s()
-    # The hypervisor of a shared VM stops its CPUs now and then (measured here: up to 0.4 s of
-    # CPU time in one second); what arrives meanwhile waits, whatever the daemon does.
+    # The hypervisor of a shared VM stops its CPUs now and then (up to a large part of a
+    # second); what arrives meanwhile waits, whatever the daemon does.
     hypervisor = {
         "steal_cpu_s": round((ticks[-1][1] - ticks[0][1]) / hz, 3) if len(ticks) > 1 else None,
         "steal_windows": sum(1 for a, _ in stolen if a >= warmup_s),

@@ -5,8 +5,8 @@ from __future__ import annotations
 import argparse
 
 #: Default ``--duration`` of each bench [s] (inference and arm when not named: 60).
-#: replay: a 10 min session (60x real time measured); a shorter one is mostly the calibration
-#: minute, whose eager rounds the worker cannot keep up with (38-44x).
+#: replay: a 10 min session; a shorter one is mostly the calibration minute, whose eager
+#: rounds the worker cannot keep up with, so its speed says little about the rest.
 DEFAULT_DURATION_S = {"service": 20.0, "floor": 20.0, "arm": 20.0, "replay": 600.0,
                       "soak": 1800.0}
 

@@ -44,8 +44,8 @@ def recovery(args: argparse.Namespace) -> int:
 
 
 def register(sub) -> None:
-    p = sub.add_parser("recovery", help="insufflation-change recovery (issue 4's measure) "
-                                        "per seed and per pipeline setting")
+    p = sub.add_parser("recovery", help="insufflation-change recovery per seed and per "
+                                        "pipeline setting")
     p.add_argument("--seeds", default="3,4,5,6", help="scenario seeds, comma-separated")
     p.add_argument("--set", action="append", default=[],
                    help="JSON PipelineConfig overrides (repeatable; none: the defaults)")

@@ -45,14 +45,13 @@ class PolicyConfig(BaseModel):
 
     name: Literal["gated", "ungated", "frozen", "drift-triggered", "periodic-reset"] = "gated"
     release_delay_s: float = Field(default=2.5, ge=0.0,
-                                   description="a free sample waits this long for a contact")
+                                   description="a free sample waits this long for a contact [s]")
     onset_margin_s: float = Field(
         default=2.5, ge=0.0,
         description="when a contact is found, the waiting samples from this long before the "
                     "gate's onset on are dropped (the force builds up under the bound first: "
-                    "the gate finds some contacts 2.0-2.5 s after they start, measured on "
-                    "trocar-contact seeds 3-4); older ones go on waiting and are offered "
-                    "after the contact")
+                    "the gate finds some contacts seconds after they start); older ones go "
+                    "on waiting and are offered after the contact [s]")
     reset_every_s: float = Field(default=120.0, gt=0.0,
                                  description="periodic-reset: back to the initial net [s]")
 
@@ -64,7 +63,7 @@ class CalibrationGuardConfig(BaseModel):
     net calibrates, and the step-1 model's validation RMSE says how large it is in free
     motion; a contact adds ``J^T w`` on top. So a :class:`FreeMotionGate` on it, seeded with
     ``scale_factor`` x that RMSE instead of a warm-up (a warm-up could itself be spent in
-    contact: ``trocar-contact`` seed 3 touches from 1.6 s to 4.9 s), can judge from the first
+    contact: a contact may begin within a session's first seconds), can judge from the first
     sample. It counts the samples it calls contact and warns (``action: warn``), or keeps
     them out of training through the gated phase's delay line (``action: refuse``).
     """
@@ -74,11 +73,11 @@ class CalibrationGuardConfig(BaseModel):
     enabled: bool = Field(default=True, description="judge the calibration's samples")
     action: Literal["warn", "refuse"] = Field(
         default="warn",
-        description="warn: every calibration sample trains as before, the guard only counts "
-                    "and warns; refuse: what the guard calls contact does not train (no "
-                    "contact trained on trocar-contact, but a calibration 0.02-0.25 N worse on "
-                    "contact-free ones: see the README); refuse also publishes the guard's "
-                    "free flag during the calibration (warn: all free, as before)")
+        description="warn: every calibration sample trains, the guard only counts and "
+                    "warns; refuse: what the guard calls contact does not train (a slightly "
+                    "worse calibration on contact-free sessions: docs/architecture.md); "
+                    "refuse also publishes the guard's free flag during the calibration "
+                    "(warn: all free)")
     residual_scale: tuple[float, ...] | None = Field(
         default=None,
         description="free-motion RMS of the step-1 residual per joint [N m; N on insertion]; "
@@ -86,8 +85,8 @@ class CalibrationGuardConfig(BaseModel):
     scale_factor: float = Field(
         default=2.0, gt=0.0,
         description="the guard starts from this x residual_scale (a set-up adds residual the "
-                    "step-1 validation did not have; measured on insufflation-change seeds "
-                    "3-6, contact-free: 1.0 called 67-85 % of the samples free, 2.0 80-96 %)")
+                    "step-1 validation did not have: at 1.0 the guard calls much of a "
+                    "contact-free calibration contact)")
     borderline_trains: bool = Field(
         default=True,
         description="refuse: a sample the guard calls free but over the gate's train_sigma "

@@ -214,7 +214,7 @@ def metrics_markdown(m: dict[str, Any]) -> str:
 
 def recovery_levels(r: ReplayResult, session: Session, change_s: float,
                     settle_s: float = 60.0, window_s: float = 40.0) -> tuple[float, float]:
-    """Issue 4's recovery measure after a set-up change at ``change_s`` [s]: the free-motion
+    """The insufflation-recovery measure after a set-up change at ``change_s`` [s]: the free-motion
     force RMSE [N] over the ``window_s`` before the change (``pre``), and over the
     ``window_s`` that start once ``settle_s`` of free motion (truth labels) has passed after
     it (``post``). Needs the session's truth; raises ``ValueError`` when the session ends

@@ -139,7 +139,7 @@ class Daemon:
             arm.realtime_priority = self.realtime_priority
         # Everything loaded so far (torch, models: ~260k objects) lives as long as the daemon.
         # Freezing it keeps the cyclic GC from scanning it: a full collection of it takes
-        # 100-300 ms on this machine, a stall every estimate would wait through.
+        # 100-300 ms, a stall every estimate would wait through.
         gc.collect()
         gc.freeze()
         self.thread = threading.Thread(target=self._estimate, name="wrenchd-estimate",

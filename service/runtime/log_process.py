@@ -1,16 +1,16 @@
 """The daemon's MCAP logs, written by a process of their own.
 
-Formatting and writing a sample's two records (input and estimate) took ~110-140 us of the
-daemon's CPU per sample (measured with ``wrenchd bench service``: 832 -> 721 us per sample
-without the log), all of it under the daemon's GIL, which the estimating thread waits for.
+Formatting and writing a sample's two records (input and estimate) costs over a hundred
+microseconds of CPU per sample; in the daemon's process all of it would run under its GIL,
+which the estimating thread waits for.
 :class:`LogWriterProcess` keeps only an append per record there: a sender thread hands the
 queued records over every ``interval_s`` as one pickled batch of plain values (bytes, or the
 name of a formatter in :data:`wrenchd.adapters.mcap_log.FORMATTERS` with its arguments as lists:
 ~1 us per sample to pickle, against ~17 us for NumPy arrays), and the writer process formats
 them and writes the arm's :class:`~wrenchd.adapters.mcap_log.McapLog` (flushed every
-``flush_interval_s``, rotated, never fatal, as before).
+``flush_interval_s``, rotated, never fatal).
 
-Crash safety improves too: if the daemon dies (even ``kill -9``), the writer reads the end of
+Crash safety: if the daemon dies (even ``kill -9``), the writer reads the end of
 its pipe, writes what it received, finishes every file (summary and footer) and exits. Like the
 adaptation worker, it ignores SIGINT and SIGTERM (Ctrl-C reaches the whole process group; it
 stops on the daemon's word), leaves the daemon's real-time class and runs on the worker's CPUs.

@@ -3,9 +3,8 @@
 NumPy's BLAS (OpenBLAS) starts a thread per core unless ``OMP_NUM_THREADS`` says otherwise,
 and NumPy is imported before any command could set that variable. The daemon, its
 adaptation worker and replay each run their own small matrix products on a machine whose
-cores they share with each other: BLAS threads of their own busy-wait against them (the
-default replay ran 3x slower: 2 743 vs 8 273 samples/s, ``wrenchd bench replay --duration
-120`` without and with ``OMP_NUM_THREADS=1``). :func:`one_compute_thread` limits BLAS through
+cores they share with each other: BLAS threads of their own busy-wait against them (a
+replay runs about 3x slower with them). :func:`one_compute_thread` limits BLAS through
 threadpoolctl, whatever was imported first, and torch to one intra-op thread.
 
 :func:`realtime` and :func:`normal_scheduling` move threads in and out of the kernel's

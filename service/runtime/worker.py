@@ -159,8 +159,8 @@ class WorkerProcess:
 class _Rows:
     """Rows (float32 unless told) appended a few at a time into storage that grows by
     doubling, so that handing them over costs one copy, not a concatenation of hundreds of
-    small arrays on the estimation thread (measured ~0.7 ms every ``_BATCH_S``, a sample's
-    whole latency budget)."""
+    small arrays on the estimation thread (~0.7 ms every ``_BATCH_S``, a sample's whole
+    latency budget)."""
 
     def __init__(self, dtype=np.float32) -> None:
         self._data: np.ndarray | None = None
