@@ -86,7 +86,7 @@ def hidden_effect_sweep(out: Path, seeds: int, duration: float, pair_seeds: int,
              "scenario's workspace and physics: rigid body, Coulomb, viscous and Stribeck "
              "friction, wrist cable coupling; encoder quantisation, lagged velocity estimate, "
              "effort noise) with the hidden effect(s) switched on at a random magnitude in "
-             "their realistic range (`service/hidden_effects.py`), and gives "
+             "their realistic range (`service/studies/hidden_effects.py`), and gives "
              "`run_discrepancy` the model without them.", "",
              "A single-effect run **passes** when (1) the hidden effect is named first, "
              "(2) its checked parameters are within tolerance (relative; checked where their "

@@ -67,7 +67,7 @@ def markdown(results: dict[str, Any], command: str, wall_s: float) -> str:
            f"threads, {platform.processor() or platform.machine()}).\n",
            "Wu, Yilmaz, Kazanzides, Tumerdem, *Estimation of Trocar and Tool Interaction Forces "
            "on the da Vinci Research Kit with Two-Step Deep Learning*: the three tables and the "
-           "force plot regenerated on simulated data (`service/reproduction.py` says how). "
+           "force plot regenerated on simulated data (`service/studies/reproduction.py` says how). "
            "RMSEs are of the estimated tip wrench against the simulator's true tip wrench, per "
            "axis, over every sample of a trial, averaged over trials; `x (r)` is the RMSE and "
            "its ratio to the **oracle floor** (the same estimate made with the simulator's "
