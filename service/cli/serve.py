@@ -20,6 +20,10 @@ def serve(args: argparse.Namespace) -> int:
     if args.scenario or args.seed is not None:
         sim = {"scenario": args.scenario or "trocar-contact", "seed": args.seed or 0}
         overrides["simulator"] = sim
+    live = {k: v for k, v in (("port", args.foxglove_port), ("host", args.foxglove_host))
+            if v is not None}
+    if live:
+        overrides["foxglove"] = live
     settings = load_settings(args.config, **overrides)
     duration = args.duration if args.duration is not None else settings.duration_s
     if duration is not None and settings.duration_s != duration:
@@ -36,4 +40,9 @@ def register(sub) -> None:
     p.add_argument("--scenario", choices=SCENARIO_CHOICES, default=None, metavar="NAME",
                    help="scenario of the simulated PSM (robot = simulated): %(choices)s")
     p.add_argument("--seed", type=int, default=None, help="seed of the simulated PSM")
+    p.add_argument("--foxglove-port", type=int, default=None, metavar="PORT",
+                   help="serve a live view to Foxglove on this WebSocket port (0: any free "
+                        "one): wrench, external joint torques, gate, status, events")
+    p.add_argument("--foxglove-host", default=None, metavar="HOST",
+                   help="address of the Foxglove server (default 127.0.0.1: this machine only)")
     p.set_defaults(func=serve)

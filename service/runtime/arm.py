@@ -60,6 +60,7 @@ class ArmRuntime:
         self.console: Console | None = None                 # likewise
         self.realtime_priority: int | None = None           # likewise: the sample path's
         self.zenoh_links: dict[str, int] = {"routers": 0, "peers": 0, "link_losses": 0}
+        self.live = None        # Foxglove live view (adapters/foxglove_live.ArmLiveView), set by the daemon
         self._log_problem_reported = False
         self.pub_wrench = session.declare_publisher(self.keys["wrench"])
         self.pub_events = session.declare_publisher(self.keys["events"])
@@ -124,6 +125,8 @@ class ArmRuntime:
             payload = event_bytes(ev.to_json())
             self.pub_events.put(payload)
             self._log(TOPIC_EVENTS, max(int(ev.t * 1e9), 0), payload)
+        if self.live is not None:                 # live view: never raises, never blocks
+            self.live.events(events)
 
     def _log(self, topic: str, stamp_ns: int, payload) -> None:
         """Hand a record (bytes, or a formatter's name and arguments) to the log writer."""
@@ -220,6 +223,8 @@ class ArmRuntime:
                                           msg.frame_id))
             self._log(TOPIC_JOINT_STATES, est.stamp_ns, record)
             self._log(TOPIC_ESTIMATE, est.stamp_ns, estimate_payload(est, self.cfg.frame_id))
+            if self.live is not None:             # live view: decimated, never raises
+                self.live.estimate(est)
         if events:
             self._publish_events(events)
 
@@ -240,6 +245,8 @@ class ArmRuntime:
             status = self.status()
             stamp = self.last.stamp_ns if self.last is not None else 0
             self._log(TOPIC_STATUS, stamp, event_bytes(status))
+            if self.live is not None:             # live view: never raises
+                self.live.status(status)
             self._console(status)
         if self.log.problem and not self._log_problem_reported:
             self._log_problem_reported = True

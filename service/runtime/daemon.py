@@ -35,6 +35,7 @@ import time
 from pathlib import Path
 
 
+from wrenchd.adapters.foxglove_live import open_live_view
 from wrenchd.adapters.zenoh_io import open_session
 from wrenchd.models.estimator.free_space import FreeSpaceModel
 from wrenchd.service.runtime.settings import ServiceSettings
@@ -80,6 +81,7 @@ class Daemon:
         self.robots: list[subprocess.Popen] = []
         self.log_writer: LogWriterProcess | None = None
         self.console: Console | None = None
+        self.live = None                            # Foxglove live view ([foxglove] port)
         self.realtime_priority: int | None = None
         self._links: tuple[int, int] | None = None       # (routers, peers) last counted
         self._links_next = 0.0
@@ -105,6 +107,8 @@ class Daemon:
             norms = {name: normalisation_of(self.models[name]) for name in adapt}
             self.worker = WorkerProcess(adapt, s.effective_models_dir(), frac, norms,
                                         cpus=s.cpus.worker)
+        # before the real-time window: the live view's server threads stay in the normal class
+        self.live = open_live_view(s.foxglove)
         if self.realtime_priority is not None:
             # from here until the estimation thread is started, every thread made (zenoh's
             # runtime and callback threads, estimation) inherits the real-time class; the worker
@@ -137,6 +141,7 @@ class Daemon:
             arm.log_writer = self.log_writer
             arm.console = self.console
             arm.realtime_priority = self.realtime_priority
+            arm.live = self.live.arm(arm.name, arm.cfg.frame_id) if self.live else None
         # Everything loaded so far (torch, models: ~260k objects) lives as long as the daemon.
         # Freezing it keeps the cyclic GC from scanning it: a full collection of it takes
         # 100-300 ms, a stall every estimate would wait through.
@@ -163,6 +168,8 @@ class Daemon:
             print(f"wrenchd: {arm.name} ({arm.cfg.encoding}) listening on "
                   f"'{arm.keys['measured_js']}', publishing wrenches on '{arm.keys['wrench']}', "
                   f"logging to {s.log.directory}", flush=True)
+        if self.live is not None:
+            print(f"wrenchd: Foxglove live view on {self.live.url}", flush=True)
 
     def _realtime_priority(self) -> int | None:
         """The SCHED_FIFO priority of the sample path, None for the normal class; an explicit
@@ -291,6 +298,9 @@ class Daemon:
             self.thread.join(timeout=10.0)
         for arm in self.arms:
             arm.close()
+        if self.live is not None:                  # after the estimation thread stopped
+            self.live.close()
+            self.live = None
         if self.console is not None:
             self.console.close()
             self.console = None
