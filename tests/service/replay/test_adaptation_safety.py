@@ -1,45 +1,43 @@
-"""Adaptation safety: long contacts and an adversarial publisher must not spoil the model.
+"""Adaptation safety: long contacts and an adversarial publisher must not spoil the model,
+and it is the gate that keeps them out.
 
 Each session is simulated ``trocar`` motion (seal and body wall at 12 mmHg) replayed through
-the daemon's own pipeline (``wrenchd.service.replay.loop.replay``, gated policy, adaptation rounds in
+the daemon's own pipeline (``wrenchd.service.replay.loop.replay``, adaptation rounds in
 replay's worker with their nets serving 1 s of sample time later, as in the daemon;
-deterministic): a contact-free calibration of ``CAL_S``, then from ``ATTACK_S``
-on something the adaptation must not learn from:
+deterministic on one machine): a contact-free calibration of ``CAL_S``, then from
+``ATTACK_S`` on something the adaptation must not learn from:
 
 * a **long contact**: the tip holds a grasped handle for 24 s (up to 8 N);
-* an **effort ramp**: the published efforts drift away from the truth by up to 0.15 N m on
-  yaw and pitch and 0.6 N on insertion over 20 s, then stay off (a false tip force of about
-  2 N through ``J^-T``; within every validation bound);
-* a **replayed trajectory**: the publisher switches to a recording of another arm set-up
-  (``deploy/models/trocar-heavy-seal.json``: stiffer seal, higher pressure, a payload);
+* a **replayed trajectory**: the publisher switches to a recording of another arm
+  (``deploy/models/trocar-heavy-seal.json``: stiffer seal, higher pressure, a payload)
+  grasping a handle for 24 s;
 * a **second publisher** on the same key, interleaving that recording with the robot's
   samples 2.5 ms apart (what any process on an open zenoh network can do; the router's ACL in
-  ``deploy/zenoh/router.json5`` is what forbids it).
+  ``deploy/zenoh/router.json5`` is what forbids it);
+* an **effort ramp**: the published efforts drift away from the truth by up to 0.15 N m on
+  yaw and pitch and 0.6 N on insertion over 20 s, then stay off (a false tip force of about
+  2 N through ``J^-T``; within every validation bound).
 
 The model serving when the attack begins (``pre``) and at the end of the session (``post``)
 are scored on a clean held-out ``trocar`` session (another trajectory): free-motion force
 RMSE. **Bound**: ``post <= 1.2 * pre`` and ``post <= frozen`` (the net before any
-adaptation). Measured ``post / pre`` for seeds 3, 7, 11 (seed 7 in this test;
-``pytest -s`` prints them): effort ramp 0.94, 0.94, 0.89;
-replayed trajectory 1.00, 1.00, 1.06; second publisher 1.00 each; long contact with the
-gate's ``max_contact_s`` (60 s) above the contact's length 1.00 each. A model that had
-learned the ramp's offset would be at ~1.6 (its ~2 N on top of the ~1.8-2.4 N held-out
-error). The gate protects mostly by calling the attack a contact: after the replayed
-trajectory, the second publisher and the long contact, no swap or almost none happens.
+adaptation). Each of the first three cases replays the same session twice, with the gated
+policy (the daemon's) and with ``ungated`` (every sample trains): the gated model stays
+within the bound and the ungated one leaves it, so the bound holds because of the gate.
+Measured ``post / pre`` (``pytest -s`` prints them), gated / ungated: long contact 1.00 /
+2.27, replayed trajectory 1.00 / 3.51, second publisher 1.00 / 1.69 (the ungated ratio of
+the second publisher depends on the recording: 1.28, 1.69, 1.57 for recordings of seeds 8,
+9, 10; this test uses 9). The gate protects by calling the attack a contact: no swap happens
+after it. A contact longer than the gate's ``max_contact_s`` re-calibrates the gate, and
+nothing is trainable for another ``max_contact_s`` after that: with 15 s the 24 s contact
+offers no contact sample and the ratio stays 1.00.
 
-What these three do *not* show: an unprotected (``ungated``) adaptation stays within the
-bound on them too (seed 7, inline adaptation: 0.83, 0.67, 0.80): realistic-looking joint states mostly help a
-model calibrated for 20 s. A larger ramp does break it: three times the one above (about 6 N
-of false force), held for 20 s (a 65 s session, not in the suite), gave gated 1.56 and
-ungated 2.19 (inline adaptation). The gate cannot tell a slow drift of the published efforts from instrument
-wear, which it must follow; what keeps such a publisher out is the router's access control.
-
-**Was a failure, fixed**: with the gate's old ``max_contact_s`` of 15 s, a 24 s contact made
-the gate re-calibrate on the contact (taking it for a lasting set-up change) and the rest of
-the contact trained: measured ``post / pre`` 1.71 (seed 7: 23 % of the offered samples were
-in contact), 2.60 (seed 11: 18 %), 1.00 (seed 3). Now ``max_contact_s`` is 60 s and, after
-a re-calibration, nothing is trainable for another ``max_contact_s`` (a contact longer than
-that stays out of training too): 1.00 on seed 7, no contact sample offered.
+The effort ramp does not show the gate's effect: the gate cannot tell a slow drift of the
+published efforts from instrument wear, which it must follow. Gated 0.92, ungated 0.76 (a
+ramp within the validation bounds helps a model calibrated for 20 s either way); three
+times that ramp (about 6 N of false force) held for 20 s breaks both (gated 1.56, ungated
+2.19, 65 s session, not in the suite). What keeps such a publisher out is the router's
+access control.
 
 Every case also checks that each model swap carries ``val_before`` and ``val_after`` with
 ``val_after < val_before``: a swap that raises validation error never happens.
@@ -87,13 +85,17 @@ def robot() -> Session:
 
 @pytest.fixture(scope="module")
 def other_setup() -> Session:
-    """Another trajectory on another set-up: what the attacker replays."""
-    model = PhysicsModel.from_dict(json.loads(HEAVY.read_text()))
-    return run_scenario("trocar", DURATION_S, SEED + 1, model=model)
+    """Another trajectory on another set-up, grasping a handle for 24 s from ``ATTACK_S``:
+    what the attacker replays."""
+    grasp = {"name": "external_contact",
+             "params": {"episodes": [[ATTACK_S, ATTACK_S + 24.0]]}}
+    heavy = json.loads(HEAVY.read_text())
+    heavy["effects"] = [e for e in heavy["effects"] if e["name"] != "external_contact"] + [grasp]
+    return run_scenario("trocar", DURATION_S, SEED + 2, model=PhysicsModel.from_dict(heavy))
 
 
-def config(**gate) -> PipelineConfig:
-    return PipelineConfig(calibration_s=CAL_S, gate=gate)
+def config(policy: str = "gated", **gate) -> PipelineConfig:
+    return PipelineConfig(calibration_s=CAL_S, gate=gate, policy=PolicyConfig(name=policy))
 
 
 def run(session: Session, seal, cfg: PipelineConfig) -> tuple[ReplayResult, list]:
@@ -146,11 +148,28 @@ def judge(name: str, session: Session, seal, clean: Session, cfg: PipelineConfig
     return result, pre, post, frozen
 
 
+def within_bound(pre: float, post: float, frozen: float) -> bool:
+    return post <= BOUND * pre and post <= frozen
+
+
+def gated_and_ungated(name: str, session: Session, seal, clean: Session) -> ReplayResult:
+    """The gated model stays within the bound on ``session``; the ungated one, on the same
+    session, leaves it. The gated replay's result."""
+    result, pre, post, frozen = judge(f"{name}, gated", session, seal, clean, config())
+    assert within_bound(pre, post, frozen), (pre, post, frozen)
+    _, pre_u, post_u, frozen_u = judge(f"{name}, ungated", session, seal, clean,
+                                       config("ungated"))
+    assert not within_bound(pre_u, post_u, frozen_u), (pre_u, post_u, frozen_u)
+    return result
+
+
 def with_joint_states(session: Session, js: JointStates) -> Session:
     return dataclasses.replace(session, joint_states=js, truth=None)
 
 
-def long_contact_session() -> Session:
+@pytest.fixture(scope="module")
+def long_contact() -> Session:
+    """The robot's own motion with one 24 s grasp from ``ATTACK_S``."""
     effects = SCENARIOS["trocar"].effects(DURATION_S) + [{
         "name": "external_contact", "params": {"episodes": [[ATTACK_S, ATTACK_S + 24.0]]}}]
     model = PhysicsModel.from_dict({"description": "trocar with one 24 s contact",
@@ -158,28 +177,36 @@ def long_contact_session() -> Session:
     return run_scenario("trocar", DURATION_S, SEED, model=model)
 
 
-def test_an_effort_ramp_does_not_spoil_the_model(robot, seal, clean):
-    js = robot.joint_states
-    ramp = np.clip((js.t - ATTACK_S) / 20.0, 0.0, 1.0)[:, None] * RAMP
-    attacked = with_joint_states(robot, dataclasses.replace(js, effort=js.effort + ramp))
-    result, pre, post, frozen = judge("effort ramp", attacked, seal, clean, config())
-    assert result.status["counters"]["errors"] == 0          # plausible: nothing refused
-    assert post <= BOUND * pre and post <= frozen
+def test_a_long_contact_trains_only_without_the_gate(long_contact, seal, clean):
+    session = long_contact
+    result = gated_and_ungated("24 s contact", session, seal, clean)
+    offered = np.searchsorted(session.joint_states.t, result.offered_t)
+    assert session.truth.in_contact[offered].mean() < 0.01
 
 
-def test_a_replayed_trajectory_does_not_spoil_the_model(robot, other_setup, seal, clean):
+def test_a_contact_longer_than_max_contact_s_stays_out_of_training(long_contact, seal, clean):
+    """The gate re-calibrates 15 s into the 24 s contact; the rest of it is not trainable."""
+    session = long_contact
+    result, pre, post, frozen = judge("24 s contact, max_contact_s 15", session, seal, clean,
+                                      config(max_contact_s=15.0))
+    assert "gate_recalibrated" in [e.kind for e in result.events]
+    offered = np.searchsorted(session.joint_states.t, result.offered_t)
+    assert not session.truth.in_contact[offered].any()
+    assert within_bound(pre, post, frozen), (pre, post, frozen)
+
+
+def test_a_replayed_trajectory_trains_only_without_the_gate(robot, other_setup, seal, clean):
     js, other = robot.joint_states, other_setup.joint_states
     k = int(np.searchsorted(js.t, ATTACK_S))
     switched = JointStates(js.t, np.r_[js.position[:k], other.position[k:]],
                            np.r_[js.velocity[:k], other.velocity[k:]],
                            np.r_[js.effort[:k], other.effort[k:]], js.names)
-    result, pre, post, frozen = judge("replayed trajectory", with_joint_states(robot, switched),
-                                      seal, clean, config())
-    assert result.status["counters"]["errors"] == 0
-    assert post <= BOUND * pre and post <= frozen
+    result = gated_and_ungated("replayed trajectory", with_joint_states(robot, switched), seal,
+                               clean)
+    assert result.status["counters"]["errors"] == 0          # plausible: nothing refused
 
 
-def test_a_second_publisher_does_not_spoil_the_model(robot, other_setup, seal, clean):
+def test_a_second_publisher_trains_only_without_the_gate(robot, other_setup, seal, clean):
     js, other = robot.joint_states, other_setup.joint_states
     k = int(np.searchsorted(js.t, ATTACK_S))
     t = np.r_[js.t, other.t[k:] + 0.0025]
@@ -190,27 +217,16 @@ def test_a_second_publisher_does_not_spoil_the_model(robot, other_setup, seal, c
     both = JointStates(t[order], merged(js.position, other.position),
                        merged(js.velocity, other.velocity), merged(js.effort, other.effort),
                        js.names)
-    result, pre, post, frozen = judge("second publisher", with_joint_states(robot, both), seal,
-                                      clean, config())
+    result = gated_and_ungated("second publisher", with_joint_states(robot, both), seal, clean)
     assert result.status["counters"]["estimated"] == len(both)    # all of it got through
-    assert post <= BOUND * pre and post <= frozen
 
 
-def test_a_long_contact_within_max_contact_s_does_not_spoil_the_model(seal, clean):
-    session = long_contact_session()
-    cfg = config(max_contact_s=60.0)
-    result, pre, post, frozen = judge("24 s contact, max_contact_s 60", session, seal, clean,
-                                      cfg)
-    offered = np.searchsorted(session.joint_states.t, result.offered_t)
-    assert session.truth.in_contact[offered].mean() < 0.01
-    assert post <= BOUND * pre and post <= frozen
-
-
-def test_a_long_contact_with_the_default_gate_does_not_spoil_the_model(seal, clean):
-    session = long_contact_session()
-    result, pre, post, frozen = judge("24 s contact, default gate", session, seal, clean,
-                                      config())
-    offered = np.searchsorted(session.joint_states.t, result.offered_t)
-    print(f"  contact samples among those offered: "
-          f"{session.truth.in_contact[offered].mean():.1%}")
-    assert post <= BOUND * pre and post <= frozen
+def test_an_effort_ramp_does_not_spoil_the_gated_model(robot, seal, clean):
+    """Not a test of the gate (see the module docstring): the bound on a slow drift of the
+    published efforts, which adaptation follows as it follows instrument wear."""
+    js = robot.joint_states
+    ramp = np.clip((js.t - ATTACK_S) / 20.0, 0.0, 1.0)[:, None] * RAMP
+    attacked = with_joint_states(robot, dataclasses.replace(js, effort=js.effort + ramp))
+    result, pre, post, frozen = judge("effort ramp", attacked, seal, clean, config())
+    assert result.status["counters"]["errors"] == 0          # plausible: nothing refused
+    assert within_bound(pre, post, frozen), (pre, post, frozen)
