@@ -58,7 +58,7 @@ from wrenchd.models.estimator.estimator import TwoStepEstimator
 from wrenchd.models.estimator.pretrained import load_pretrained
 from wrenchd.models.physics.model import PhysicsModel
 from wrenchd.models.series import JointStates, Session
-from wrenchd.service.pipeline import PipelineConfig, initial_corr
+from wrenchd.service.pipeline import PipelineConfig, PolicyConfig, initial_corr
 from wrenchd.service.replay.loop import ReplayResult, replay
 
 CAL_S, ATTACK_S, DURATION_S, SEED = 20.0, 25.0, 50.0, 7
