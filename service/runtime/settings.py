@@ -23,6 +23,7 @@ from pydantic_settings import (BaseSettings, PydanticBaseSettingsSource, Setting
                                TomlConfigSettingsSource)
 
 from wrenchd.adapters.foxglove_live import FoxgloveConfig
+from wrenchd.adapters.foxglove_live import FoxgloveConfig
 from wrenchd.adapters.mcap_log import LogConfig
 from wrenchd.adapters.messages import JOINT_STATE_TYPE, WRENCH_TYPE
 from wrenchd.adapters.rmw_zenoh import check_node, check_topic, topic_key
@@ -257,6 +258,7 @@ class ServiceSettings(BaseSettings):
                                    description="adapted Corr versions (default: log dir/models)")
     status_interval_s: float = Field(default=1.0, gt=0.0, description="status log period [s]")
     cpus: CpuPlacement = Field(default_factory=CpuPlacement)
+    foxglove: FoxgloveConfig = Field(default_factory=FoxgloveConfig)   # live view (off by default)
     ros: RosSettings = Field(default_factory=RosSettings)
     foxglove: FoxgloveConfig = Field(default_factory=FoxgloveConfig)   # live view (off by default)
     duration_s: float | None = Field(default=None, gt=0.0, description="stop after [s]")
