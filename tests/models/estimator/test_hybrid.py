@@ -1,0 +1,158 @@
+"""The hybrid step 1: physics + a residual net behind a trust gate, streamed and batched."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from wrenchd.models.errors import ConfigError, DataError
+from wrenchd.models.estimator.coverage import Coverage, CoverageConfig, smoothstep
+from wrenchd.models.estimator.estimator import TwoStepEstimator
+from wrenchd.models.estimator.hybrid import (
+    HybridConfig,
+    HybridStep1,
+    ResidualNetConfig,
+    fit_hybrid,
+)
+from wrenchd.models.physics.dynamics import RigidBodyModel
+from wrenchd.models.physics.least_squares import RigidBodyFrictionModel
+from wrenchd.models.series import JointStates
+
+DT = 0.005
+CENTRE = np.array([-0.2, 0.0, 0.15, 0.0, 0.0, 0.0])
+AMPLITUDE = np.array([0.3, 0.4, 0.05, 0.6, 0.4, 0.4])
+
+
+def trajectory(seconds: float, phase: float = 0.0, scale: float = 1.0) -> JointStates:
+    """A smooth periodic excitation (period 4 s) with torques from a fixed rigid body +
+    friction model plus a position-dependent effect that physics lacks."""
+    t = np.arange(int(round(seconds / DT))) * DT
+    w = 2 * np.pi / 4.0
+    k = np.array([3.0, 2.0, 4.0, 5.0, 6.0, 7.0])
+    arg = w * t[:, None] * k[None, :] / 2 + phase + k
+    q = CENTRE + scale * AMPLITUDE * np.sin(arg)
+    dq = scale * AMPLITUDE * (w * k / 2) * np.cos(arg)
+    ddq = -scale * AMPLITUDE * (w * k / 2) ** 2 * np.sin(arg)
+    rigid = RigidBodyModel()
+    tau = rigid.inverse_dynamics(q, dq, ddq)
+    tau += 0.05 * np.tanh(dq / 0.02) + 0.02 * dq
+    ripple = np.sin(3 * np.pi * (q - CENTRE) / AMPLITUDE)  # 1.5 periods over the range
+    tau[:, :3] += 0.08 * ripple[:, :3]                    # e.g. transmission ripple
+    return JointStates(t, q, dq, tau)
+
+
+@pytest.fixture(scope="module")
+def trained() -> HybridStep1:
+    config = HybridConfig(residual=ResidualNetConfig(hidden=(32, 32), epochs=30, lr=1e-2))
+    return fit_hybrid([trajectory(16.0)], config)
+
+
+def rmse(a, b):
+    return np.sqrt(np.mean((a - b) ** 2, axis=0))
+
+
+def test_residual_learns_where_physics_misses(trained):
+    test = trajectory(8.0)                                # the trained trajectory again
+    parts = trained.parts(np.concatenate([test.position, test.velocity], 1))
+    assert parts.weight.min() == 1.0                      # all inside the coverage
+    phys, hyb = rmse(parts.physics, test.effort), rmse(parts.torque, test.effort)
+    # The ripple is about 0.057 N m RMS and physics has no column for it.
+    assert np.all(phys[:3] > 0.03), phys
+    assert np.all(hyb[:3] < 0.6 * phys[:3]), (hyb, phys)
+
+
+def test_outside_the_coverage_physics_alone(trained):
+    far = trajectory(4.0, phase=1.3, scale=0.5)           # other joint states entirely
+    x = np.concatenate([far.position, far.velocity], 1)
+    parts = trained.parts(x)
+    assert np.all(trained.coverage.distance(x) > trained.config.coverage.outer_distance)
+    assert parts.weight.max() == 0.0
+    np.testing.assert_array_equal(parts.torque, parts.physics)
+
+
+def test_streaming_matches_batch(trained):
+    test = trajectory(3.0, phase=0.2)
+    x = np.concatenate([test.position, test.velocity], 1)
+    batch = trained.predict_sequence(x)
+    state, rows = None, []
+    for row in x:
+        y, state = trained.step(row, state)
+        rows.append(y)
+    np.testing.assert_allclose(np.array(rows), batch, rtol=0, atol=1e-10)
+    # Two streams at once, and a segment run in chunks.
+    state2 = trained.initial_state(2)
+    y2 = [trained.step(np.stack([r, r]), state2 := trained.step(np.stack([r, r]), state2)[1])[0]
+          for r in x[:1]]
+    assert y2[0].shape == (2, 6)
+    a, s = trained.run(x[:100], trained.initial_state(1))
+    b, _ = trained.run(x[100:], s)
+    np.testing.assert_allclose(np.concatenate([a, b]), batch, rtol=0, atol=1e-10)
+
+
+def test_two_streams_step_independently(trained):
+    one, two = trajectory(1.0), trajectory(1.0, phase=0.7)
+    x1 = np.concatenate([one.position, one.velocity], 1)
+    x2 = np.concatenate([two.position, two.velocity], 1)
+    state, out = trained.initial_state(2), []
+    for r1, r2 in zip(x1, x2):
+        y, state = trained.step(np.stack([r1, r2]), state)
+        out.append(y)
+    out = np.array(out)
+    np.testing.assert_allclose(out[:, 0], trained.predict_sequence(x1), atol=1e-10)
+    np.testing.assert_allclose(out[:, 1], trained.predict_sequence(x2), atol=1e-10)
+
+
+def test_serves_as_step1_of_the_two_step_estimator(trained):
+    test = trajectory(2.0)
+    est = TwoStepEstimator(trained)
+    streamed = np.array([est.step_one(t, q, dq, tau).predicted_torque for t, q, dq, tau in
+                         zip(test.t, test.position, test.velocity, test.effort)])
+    batch = est.predict_batch(test)
+    np.testing.assert_allclose(streamed, batch.predicted_torque, atol=1e-10)
+    np.testing.assert_allclose(batch.predicted_torque, trained.predict_series(test), atol=1e-12)
+    est.reset_state()
+    many = est.step_many(test.t, test.position, test.velocity, test.effort)
+    np.testing.assert_allclose(np.array([o.predicted_torque for o in many]), streamed,
+                               atol=1e-10)
+
+
+def test_save_and_load(trained, tmp_path):
+    path = tmp_path / "hybrid.pt"
+    trained.save(path)
+    loaded = HybridStep1.load(path)
+    test = trajectory(2.0, phase=0.4)
+    x = np.concatenate([test.position, test.velocity], 1)
+    np.testing.assert_array_equal(loaded.predict_sequence(x), trained.predict_sequence(x))
+    assert loaded.config == trained.config and loaded.info == trained.info
+    bad = tmp_path / "bad.pt"
+    bad.write_bytes(b"not a model")
+    with pytest.raises(ConfigError):
+        HybridStep1.load(bad)
+
+
+def test_bad_input(trained):
+    with pytest.raises(DataError):
+        trained.predict_sequence(np.zeros((10, 11)))
+    with pytest.raises(DataError):
+        trained.step(np.full(12, np.nan))
+    with pytest.raises(DataError):
+        fit_hybrid([])
+
+
+def test_coverage_weight():
+    x = np.zeros((5, 12))
+    x[:, 0] = np.linspace(0.0, 4.0, 5)
+    cov = Coverage.fit([x], CoverageConfig(inner_distance=0.5, outer_distance=1.0, stride=1))
+    # Normalised: feature 0 has std sqrt(2), the other features never move.
+    probe = np.zeros((3, 12))
+    probe[:, 0] = [2.0, 2.0 + 0.75 * np.sqrt(2), 2.0 + 2.0 * np.sqrt(2)]
+    probe[1:, 0] += 2.0                                   # beyond the last training row
+    np.testing.assert_allclose(cov.distance(probe), [0.0, 0.75, 2.0], atol=1e-12)
+    np.testing.assert_allclose(cov.weight(probe), [1.0, 0.5, 0.0])
+    assert smoothstep(np.array([-1.0, 0.5, 2.0])).tolist() == [0.0, 0.5, 1.0]
+    with pytest.raises(ValueError):
+        CoverageConfig(inner_distance=1.0, outer_distance=0.5)
+
+
+def test_physics_is_the_least_squares_model(trained):
+    assert isinstance(trained.physics, RigidBodyFrictionModel)
+    assert trained.info["physics_rank"] == trained.physics.rank
