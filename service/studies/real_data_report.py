@@ -1,0 +1,133 @@
+"""The Markdown report of :func:`wrenchd.service.studies.real_data.evaluate`'s results."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from wrenchd.models.series import JOINT_NAMES
+
+UNITS = ("N m", "N m", "N", "N m", "N m", "N m")
+#: Result keys, their column titles, in table order.
+COLUMNS = (("lstm", "paper LSTM"), ("ls_plain", "LS first (sign, offline)"),
+           ("ls", "LS (offline)"), ("ls_causal", "LS causal (hybrid's physics)"),
+           ("hybrid", "hybrid"), ("hybrid_ungated", "hybrid, no trust gate"),
+           ("lstm_residual", "physics + LSTM residual"))
+
+
+def _f(x: float | None) -> str:
+    return "-" if x is None else f"{x:.4f}"
+
+
+def rmse_table(d: dict[str, Any], floor: list[float] | None = None) -> list[str]:
+    """Per-joint RMSE of every model present in ``d``, with hybrid / LS and the floor."""
+    cols = [(k, t) for k, t in COLUMNS if f"{k}_rmse" in d]
+    ratio = "hybrid_rmse" in d and "ls_rmse" in d
+    head = ["joint", "unit", "torque std"] + [t for _, t in cols]
+    head += ["hybrid / LS"] if ratio else []
+    head += ["repeatability floor"] if floor else []
+    lines = ["| " + " | ".join(head) + " |", "|" + " --- |" * len(head)]
+    for j, name in enumerate(JOINT_NAMES):
+        row = [f"{j + 1} {name}", UNITS[j], _f(d["torque_std"][j])]
+        row += [_f(d[f"{k}_rmse"][j]) for k, _ in cols]
+        if ratio:
+            row.append(f"{d['hybrid_rmse'][j] / d['ls_rmse'][j]:.3f}")
+        if floor:
+            row.append(_f(floor[j]))
+        lines.append("| " + " | ".join(row) + " |")
+    return lines + [""]
+
+
+def coverage_section(cov: dict[str, Any]) -> list[str]:
+    q = cov["distance_quantiles"]
+    lines = ["## Test samples inside the hybrid's training coverage\n",
+             (f"Full trust (residual weight 1): {100 * cov['share_full']:.1f} % of the test samples "
+              f"({cov['n_inside']}); some trust (weight > 0): {100 * cov['share_any']:.1f} %. "
+              f"Normalised distance to the nearest training sample: 10 % {q['10']:.2f}, median "
+              f"{q['50']:.2f}, 90 % {q['90']:.2f} (full trust up to {cov['inner_distance']:g}, "
+              f"none from {cov['outer_distance']:g}).\n")]
+    keys = [k for k in ("ls", "ls_causal", "hybrid") if f"{k}_rmse_inside" in cov]
+    if cov["n_inside"] and keys:
+        lines += ["| joint | " + " | ".join(f"{k} inside" for k in keys) + " |",
+                  "|" + " --- |" * (len(keys) + 1)]
+        for j, name in enumerate(JOINT_NAMES):
+            lines.append(f"| {j + 1} {name} | "
+                         + " | ".join(_f(cov[f"{k}_rmse_inside"][j]) for k in keys) + " |")
+        lines.append("")
+    return lines
+
+
+def loads_section(loads: dict[str, Any]) -> list[str]:
+    lines = ["## External torque on the loaded recordings (step 1 trained without load)\n",
+             ("Per recording and model: mean and RMS of the external torque (measured minus "
+             "predicted) on joints 1-3, and the norm of the first moment [kg m] of a point load "
+             "on the pitch link fitted to the external torque of joints 1-2 through gravity "
+             "(`moment`; `with offsets`: a constant torque per joint fitted beside it). "
+             "`measured_difference` is the loaded minus the unloaded recording sample by sample "
+             "(the same trajectory), no model at all.\n"),
+             ("| recording | model | mean j1 | mean j2 | mean j3 | RMS j1 | RMS j2 | RMS j3 | "
+              "moment | with offsets |"), "|" + " --- |" * 10]
+    for label, rec in loads["recordings"].items():
+        for key, s in rec.items():
+            if key == "grams":
+                continue
+            lines.append(f"| {Path(label).name} | {key} | "
+                         + " | ".join(f"{v:.4f}" for v in s["external_mean"] + s["external_rms"])
+                         + f" | {s['moment_kgm']:.4f} | {s['moment_with_offsets_kgm']:.4f} |")
+    lines.append("")
+    ratios = loads.get("ratios")
+    if ratios:
+        truth = ratios["truth"]
+        lines += [f"Load ratio {Path(ratios['of'][0]).name} / {Path(ratios['of'][1]).name}"
+                  + (f" (truth {truth:.3f})" if truth else "") + ":\n",
+                  "| model | moment | moment with offsets | RMS pitch |", "| --- | --- | --- | --- |"]
+        for key, v in ratios.items():
+            if isinstance(v, dict):
+                lines.append(f"| {key} | {v['moment']:.3f} | {v['moment_with_offsets']:.3f} | "
+                             f"{v['pitch_rms']:.3f} |")
+        lines.append("")
+    return lines
+
+
+def markdown(r: dict[str, Any], command: str) -> str:
+    """The report: setup, test table, coverage, repeatability, training table, loads."""
+    train = ", ".join(f"`{Path(s).name}`" for s in r["train"])
+    lines = [("# Step 1 on real dVRK data: paper LSTM, least squares and a physics-informed "
+              "hybrid\n"), f"Command: `{command}`\n",
+             (f"Trained on {train}, tested on `{Path(r['test']).name}` (WPI PSM free-motion "
+             "recordings at 200 Hz, jaw dropped; `file:a:b` is the window from a to b seconds). "
+              f"Models: {', '.join(r['models'])}.")]
+    if "lstm_train_seconds" in r:
+        rc = r["recipe"]
+        lines.append(f"Paper LSTM: {rc['epochs']} epochs max, lr {rc['lr']:g} halved every "
+                     f"{rc['lr_halving_epochs']}, patience {rc['patience']}, the last 20 % of "
+                     f"each training series picks the epoch; ran {r['lstm_epochs_run']} epochs in "
+                     f"{r['lstm_train_seconds']} s.")
+    if "ls_rank" in r:
+        lines.append(f"LS: pinocchio regressor + armature + Coulomb + viscous + offset (first: "
+                     f"`sign` Coulomb, rank {r['ls_plain_rank']}; improved: `tanh(dq / 0.02)` "
+                     f"Coulomb and a spring per joint, rank {r['ls_rank']}), centred "
+                     "Savitzky-Golay acceleration (reads 50 ms ahead: offline only).")
+    if "hybrid_info" in r:
+        i = r["hybrid_info"]
+        lines.append(f"Hybrid: the improved LS columns on a causal acceleration (48-tap filter "
+                     f"fitted to the centred one), rank {i['physics_rank']}, plus a 2 x 128 tanh "
+                     f"residual net on [q, dq, acceleration] ({i['residual_train_seconds']} s), "
+                     "behind a nearest-neighbour trust gate in normalised (q, dq).")
+    lines.append("")
+    rep = r["test_file"].get("repeatability")
+    lines += ["## Test: torque RMSE per joint\n"]
+    lines += rmse_table(r["test_file"], rep["floor_rmse"] if rep else None)
+    if rep:
+        lines += [f"Repeatability: the test trajectory repeats every {rep['period_s']:.2f} s "
+                  f"(positions within {rep['position_rms'] * 1000:.1f} mrad RMS); the floor is "
+                  "the RMS torque difference one period apart over sqrt 2. Predicting each "
+                  "sample by the mean of the same phase in earlier periods of the test itself: "
+                  + ", ".join(f"{v:.4f}" for v in rep["previous_periods_rmse"]) + ".\n"]
+    if "coverage" in r["test_file"]:
+        lines += coverage_section(r["test_file"]["coverage"])
+    lines += ["## Training samples (fit): torque RMSE per joint\n"]
+    lines += rmse_table(r["train_file"])
+    if "loads" in r:
+        lines += loads_section(r["loads"])
+    return "\n".join(lines)
