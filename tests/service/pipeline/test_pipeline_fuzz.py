@@ -228,6 +228,7 @@ def test_daemon_path_never_raises_and_never_trains_on_bad_payloads(edits):
     pipeline, offered = make_pipeline("ungated")
     edits_at = {i: (f, v, raw) for i, f, v, raw in edits}
     clean: list[float] = []
+    estimated: set[float] = set()
     for i in range(60):
         stamp = T0_NS + i * STEP_NS
         q, dq, effort = good_state(stamp)
@@ -255,11 +256,13 @@ def test_daemon_path_never_raises_and_never_trains_on_bad_payloads(edits):
         assert pipeline.counters.errors == before + len(errors)
         if est is not None:
             assert np.isfinite(est.wrench).all()
+            estimated.add(est.t)
             if not edited:
                 clean.append(est.t)
-    # an edit that left a valid, in-bounds sample may be estimated and offered; no edited one
-    # that was refused is, and no clean sample is offered twice
+    # an edit that left a valid, in-bounds sample may be estimated and offered; a refused one
+    # never is (every offered time is an estimated sample's), and nothing is offered twice
     assert len(offered) == len(set(offered)) == pipeline.counters.offered
+    assert set(offered) <= estimated
     assert set(clean) <= set(offered)
     assert pipeline.counters.received == 60
 
