@@ -155,7 +155,16 @@ class HybridStep1:
         return self.parts(features).torque
 
     def predict_series(self, states: JointStates) -> np.ndarray:
-        """Torques (N, 6) of a series, restarting at every gap (``config.max_gap_s``)."""
+        """Torques (N, 6) of a series, restarting at every gap (``config.max_gap_s``).
+
+        Raises:
+            DataError: a sample rate more than 10 % off the training rate.
+        """
+        if len(states) > 1:
+            dt = float(np.median(np.diff(states.t)))
+            if abs(dt / self.acceleration.dt_s - 1.0) > 0.1:
+                raise DataError(f"sample period {dt:.4g} s; this model was trained at "
+                                f"{self.acceleration.dt_s:.4g} s")
         out = np.zeros((len(states), N_JOINTS))
         x = np.concatenate([states.position, states.velocity], axis=1)
         for seg in segments(states.t, self.config.max_gap_s):

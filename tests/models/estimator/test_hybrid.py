@@ -136,6 +136,10 @@ def test_bad_input(trained):
         trained.step(np.full(12, np.nan))
     with pytest.raises(DataError):
         fit_hybrid([])
+    fast = trajectory(1.0)
+    with pytest.raises(DataError, match="trained at"):
+        trained.predict_series(JointStates(fast.t / 5, fast.position, fast.velocity,
+                                           fast.effort))
 
 
 def test_coverage_weight():
