@@ -386,10 +386,14 @@ class ArmPipeline:
                                           and self.config.adaptation.body_wall.enabled})]
 
     def apply(self, result: RoundResult) -> list[Event]:
-        """Apply one round's outcome (swap the ``Corr`` if accepted); its events."""
+        """Apply one round's outcome (swap the ``Corr`` if accepted); its events, stamped with
+        the arm's sample time at which it is applied (the latest estimated sample's; the
+        round's own ``t`` is the adaptation backend's clock, which for the daemon's worker is
+        seconds since it started)."""
         self.counters.rounds += 1
         self.body_wall = list(result.body_wall)
-        events = [Event(result.t, "round", {"arm": self.arm, **{
+        t = self.line.last_t if self.line.last_t is not None else result.t
+        events = [Event(t, "round", {"arm": self.arm, **{
             k: v for k, v in result.summary().items() if k != "t"}})]
         if result.accepted and result.state_dict is not None:
             # a reference swap: the worker sent the kernel ready to serve
@@ -397,7 +401,7 @@ class ArmPipeline:
             self.counters.swaps += 1
             self.model_version = result.version
             self.model_validation = result.val_after
-            events.append(Event(result.t, "model", {
+            events.append(Event(t, "model", {
                 "arm": self.arm, "version": result.version, "val_before": result.val_before,
                 "val_after": result.val_after}))
         return events

@@ -12,8 +12,10 @@ import numpy as np
 
 from wrenchd.adapters.mcap_log import TOPIC_ESTIMATE, TOPIC_EVENTS, TOPIC_STATUS, McapLog
 from wrenchd.adapters.mcap_session import TOPIC_JOINT_STATES
-from wrenchd.adapters.messages import (decode_joint_state, decode_setup_change, encode_wrench,
-                               prepare_encoding)
+from wrenchd.adapters.messages import (JOINT_STATE_TYPE, WRENCH_TYPE, decode_joint_state,
+                                      decode_setup_change, encode_wrench, prepare_encoding)
+from wrenchd.adapters.rmw_zenoh import PUBLISHER, SUBSCRIPTION, Stamper, endpoint
+from wrenchd.adapters.zenoh_io import sample_mark, wire_encoding, zenoh_encoding
 from wrenchd.models.errors import ConfigError, DataError
 from wrenchd.models.estimator.free_space import FreeSpaceModel
 from wrenchd.models.series import JOINT_NAMES
@@ -24,6 +26,9 @@ from wrenchd.service.runtime.plumbing import Console, SampleRing, event_bytes, p
 from wrenchd.service.runtime.worker import ProcessAdaptation, WorkerProcess
 
 SETUP_INBOX = 64        # set-up change notices waiting at most per arm (the oldest go)
+#: the daemon's node id in the ROS graph (rmw_zenoh); arm i's subscription and publisher are
+#: the node's entities 1 + 2 i and 2 + 2 i
+ROS_NODE_ID = 0
 
 
 def estimate_payload(est: Estimate, frame_id: str = "psm_base") -> tuple[str, tuple]:
@@ -43,7 +48,7 @@ class ArmRuntime:
                  free_space: FreeSpaceModel) -> None:
         self.cfg, self.settings = cfg, settings
         self.name = cfg.name
-        self.keys = cfg.keys.resolve(settings.prefix, cfg.name)
+        self.keys = cfg.keys.resolve(settings.prefix, cfg.name, settings.ros.domain_id)
         backend = (ProcessAdaptation(worker, cfg.name) if worker is not None else None)
         self.pipeline = ArmPipeline(cfg.name, free_space, cfg.pipeline, backend)
         if cfg.corr_checkpoint:
@@ -62,10 +67,13 @@ class ArmRuntime:
         self.zenoh_links: dict[str, int] = {"routers": 0, "peers": 0, "link_losses": 0}
         self.live = None        # Foxglove live view (adapters/foxglove_live.ArmLiveView), set by the daemon
         self._log_problem_reported = False
-        self.pub_wrench = session.declare_publisher(self.keys["wrench"])
-        self.pub_events = session.declare_publisher(self.keys["events"])
+        self._json = zenoh_encoding("json")
+        self.pub_wrench = session.declare_publisher(self.keys["wrench"],
+                                                    encoding=zenoh_encoding(cfg.encoding))
+        self.pub_events = session.declare_publisher(self.keys["events"], encoding=self._json)
         self.queryable = session.declare_queryable(self.keys["status"], self._on_query)
         self.token = session.liveliness().declare_token(self.keys["alive"])
+        self.ros_tokens, self.stamper = self._ros_endpoints(session)
         # set-up changes (JSON, any encoding): a few at most, handled on the estimation thread
         self.setup_inbox: deque[bytes] = deque(maxlen=SETUP_INBOX)
         self.setup_dropped = 0          # notices pushed out of a full inbox (counted, reported)
@@ -85,9 +93,30 @@ class ArmRuntime:
         self.pipeline.estimator.swap_correction(ckpt.model)
         self.pipeline.model_version = int(ckpt.validation.get("version", 0))
 
+    def _ros_endpoints(self, session) -> tuple[list, Stamper | None]:
+        """With the ``rmw_zenoh`` keys preset: the liveliness tokens of this arm's subscription
+        and wrench publisher as entities of the daemon's ROS node, and the stamper of the
+        wrenches' attachments (:mod:`wrenchd.adapters.rmw_zenoh`); else none."""
+        if self.cfg.keys.preset != "rmw_zenoh":
+            return [], None
+        ros, i = self.settings.ros, [a.name for a in self.settings.arms].index(self.name)
+        zid = str(session.info.zid())
+        topics = self.cfg.keys.topics(self.settings.prefix, self.name)
+        sub = endpoint(SUBSCRIPTION, ros.domain_id, zid, ROS_NODE_ID, 1 + 2 * i, ros.node,
+                       topics["measured_js"], JOINT_STATE_TYPE, ros.namespace)
+        pub = endpoint(PUBLISHER, ros.domain_id, zid, ROS_NODE_ID, 2 + 2 * i, ros.node,
+                       topics["wrench"], WRENCH_TYPE, ros.namespace)
+        liveliness = session.liveliness()
+        return [liveliness.declare_token(e.token) for e in (sub, pub)], Stamper(pub.gid)
+
+    def event_time(self) -> float:
+        """The time [s] of an event no sample carries (a refused payload, a link change, a log
+        error): the arm's latest estimated sample's stamp; the wall clock before the first."""
+        return self.last.t if self.last is not None else time.time()
+
     # -- zenoh callbacks (zenoh's threads): keep them trivial ----------------------------
     def _on_sample(self, sample) -> None:
-        self.ring.put((time.perf_counter_ns(), sample.payload.to_bytes()))
+        self.ring.put((time.perf_counter_ns(), sample.payload.to_bytes(), sample_mark(sample)))
 
     def _on_setup(self, sample) -> None:
         if len(self.setup_inbox) == SETUP_INBOX:
@@ -97,7 +126,7 @@ class ArmRuntime:
 
     def _on_query(self, query) -> None:
         try:
-            query.reply(self.keys["status"], event_bytes(self.status()))
+            query.reply(self.keys["status"], event_bytes(self.status()), encoding=self._json)
         except Exception as exc:  # noqa: BLE001 - a query must never kill the daemon
             print(f"wrenchd: status query failed: {exc}", file=sys.stderr)
 
@@ -132,12 +161,13 @@ class ArmRuntime:
         """Hand a record (bytes, or a formatter's name and arguments) to the log writer."""
         self.log_writer.put(self.log, topic, stamp_ns, payload)
 
-    def _decode(self, payload: bytes):
-        """The decoded joint state, or None after publishing the refusal's error event."""
+    def _decode(self, payload: bytes, mark: str | None = None):
+        """The decoded joint state (in the encoding the sample is marked with, else the arm's),
+        or None after publishing the refusal's error event."""
         try:
-            return decode_joint_state(self.cfg.encoding, payload)
+            return decode_joint_state(wire_encoding(mark, self.cfg.encoding), payload)
         except DataError as exc:
-            self._publish_refusal(self.pipeline.reject(time.time(), "decode", str(exc)),
+            self._publish_refusal(self.pipeline.reject(self.event_time(), "decode", str(exc)),
                                   payload)
             return None
 
@@ -154,7 +184,8 @@ class ArmRuntime:
             try:
                 stamp_ns, detail = decode_setup_change(payload)
             except DataError as exc:
-                self._publish_refusal(self.pipeline.refuse_setup(time.time(), str(exc)), payload)
+                self._publish_refusal(self.pipeline.refuse_setup(self.event_time(), str(exc)),
+                                      payload)
                 continue
             try:
                 events = self.pipeline.setup_change(
@@ -164,57 +195,60 @@ class ArmRuntime:
                 continue
             self._publish_events(events)
 
-    def handle(self, arrived_ns: int, payload: bytes) -> None:
+    def handle(self, arrived_ns: int, payload: bytes, mark: str | None = None) -> None:
         """One payload through decode -> pipeline -> publish -> log."""
-        msg = self._decode(payload)
+        msg = self._decode(payload, mark)
         if msg is not None:
-            self._emit(arrived_ns, payload, msg, *self.pipeline.process(msg))
+            self._emit(arrived_ns, payload, msg, *self.pipeline.process(msg), mark=mark)
 
-    def handle_many(self, items: list[tuple[int, bytes]]) -> None:
+    def handle_many(self, items: list[tuple[int, bytes, str | None]]) -> None:
         """Queued payloads of this arm, in order: a backlog goes through the pipeline in one
         pass (:meth:`ArmPipeline.process_many`); each wrench is published as soon as its
         batch is estimated."""
         if len(items) < ArmPipeline.BATCH_MIN:
-            for arrived_ns, payload in items:
-                self.handle_safe(arrived_ns, payload)
+            for arrived_ns, payload, mark in items:
+                self.handle_safe(arrived_ns, payload, mark)
             return
         try:
-            decoded = [(arrived_ns, payload, self._decode(payload))
-                       for arrived_ns, payload in items]
+            decoded = [(arrived_ns, payload, self._decode(payload, mark), mark)
+                       for arrived_ns, payload, mark in items]
             decoded = [d for d in decoded if d[2] is not None]
             results = self.pipeline.process_many([d[2] for d in decoded])
         except Exception as exc:  # noqa: BLE001 - never let one batch kill the arm
             self.internal_error(exc)
             return
-        for (arrived_ns, payload, msg), (est, events) in zip(decoded, results):
-            self.emit_safe(arrived_ns, payload, msg, est, events)
+        for (arrived_ns, payload, msg, mark), (est, events) in zip(decoded, results):
+            self.emit_safe(arrived_ns, payload, msg, est, events, mark)
 
     def internal_error(self, exc: Exception) -> None:
         """A bug met on this arm's path: a counted ``internal`` error event, never a crash."""
-        ev = self.pipeline.reject(time.time(), "internal", f"{type(exc).__name__}: {exc}")
+        ev = self.pipeline.reject(self.event_time(), "internal", f"{type(exc).__name__}: {exc}")
         self._publish_events([ev])
 
     def emit_safe(self, arrived_ns: int, payload: bytes, msg, est: Estimate | None,
-                  events: list[Event]) -> None:
+                  events: list[Event], mark: str | None = None) -> None:
         try:
-            self._emit(arrived_ns, payload, msg, est, events)
+            self._emit(arrived_ns, payload, msg, est, events, mark)
         except Exception as exc:  # noqa: BLE001 - never let one sample kill the arm
             self.internal_error(exc)
 
     def _emit(self, arrived_ns: int, payload: bytes, msg, est: Estimate | None,
-              events: list[Event]) -> None:
-        """Publish and log one sample's outcome."""
+              events: list[Event], mark: str | None = None) -> None:
+        """Publish and log one sample's outcome (``mark``: the sample's zenoh encoding)."""
         enc = self.cfg.encoding
         if est is not None:
             extra = ({"free": est.free, "model_version": est.model_version,
                       "score": min(est.score, 1e9)} if enc == "json" else None)
-            self.pub_wrench.put(encode_wrench(enc, est.stamp_ns, est.wrench, self.cfg.frame_id,
-                                              extra))
+            wrench = encode_wrench(enc, est.stamp_ns, est.wrench, self.cfg.frame_id, extra)
+            if self.stamper is None:
+                self.pub_wrench.put(wrench)
+            else:                                   # rmw_zenoh: every sample has its attachment
+                self.pub_wrench.put(wrench, attachment=self.stamper.next())
             self.latency_us.append((time.perf_counter_ns() - arrived_ns) / 1e3)
             self.last = est
             # Formatting and writing happen on the log writer thread. A JSON input with its
             # six names is logged as received; anything else is re-encoded there.
-            if enc == "json" and len(msg.name) == len(JOINT_NAMES):
+            if wire_encoding(mark, enc) == "json" and len(msg.name) == len(JOINT_NAMES):
                 record = payload
             else:
                 names = msg.name if len(msg.name) == len(JOINT_NAMES) else JOINT_NAMES
@@ -228,10 +262,10 @@ class ArmRuntime:
         if events:
             self._publish_events(events)
 
-    def handle_safe(self, arrived_ns: int, payload: bytes) -> None:
+    def handle_safe(self, arrived_ns: int, payload: bytes, mark: str | None = None) -> None:
         """:meth:`handle`, turning any exception into a counted ``internal`` error event."""
         try:
-            self.handle(arrived_ns, payload)
+            self.handle(arrived_ns, payload, mark)
         except Exception as exc:  # noqa: BLE001 - never let one sample kill the arm
             self.internal_error(exc)
 
@@ -250,7 +284,7 @@ class ArmRuntime:
             self._console(status)
         if self.log.problem and not self._log_problem_reported:
             self._log_problem_reported = True
-            self._publish_events([Event(time.time(), "log_error",
+            self._publish_events([Event(self.event_time(), "log_error",
                                         {"arm": self.name, "error": self.log.problem})])
         elif self.log.problem is None:                # a fresh file is open again
             self._log_problem_reported = False
@@ -270,8 +304,8 @@ class ArmRuntime:
 
     def close(self) -> None:
         """Undeclare in a safe order (the thread must have stopped)."""
-        for entity in (self.sub, self.sub_setup, self.queryable, self.token, self.pub_wrench,
-                       self.pub_events):
+        for entity in (self.sub, self.sub_setup, self.queryable, self.token, *self.ros_tokens,
+                       self.pub_wrench, self.pub_events):
             try:
                 entity.undeclare()
             except Exception:  # noqa: BLE001 - closing must go on

@@ -11,7 +11,11 @@ One zenoh session per daemon; per arm:
   writer process (:mod:`wrenchd.service.runtime.log_process`), which formats and writes them to the arm's
   :class:`McapLog` (flushed every second, rotated) outside the daemon's GIL;
 * a queryable ``status`` (JSON: model version, rates, latency percentiles, counters, gate and
-  drift state) and a liveliness token ``alive``.
+  drift state) and a liveliness token ``alive``;
+* with the ``rmw_zenoh`` keys preset, the daemon is also a ROS 2 node for rmw_zenoh peers:
+  one node liveliness token for the session (``[ros]`` domain, name, namespace), one
+  subscription and one publisher token per such arm, and an attachment on every wrench
+  (:mod:`wrenchd.adapters.rmw_zenoh`).
 
 One adaptation worker process serves all arms (:mod:`wrenchd.service.runtime.worker`). With
 ``robot = "simulated"`` (the embedded default) the daemon also starts the simulated PSM as a
@@ -36,6 +40,7 @@ from pathlib import Path
 
 
 from wrenchd.adapters.foxglove_live import open_live_view
+from wrenchd.adapters.rmw_zenoh import node_token
 from wrenchd.adapters.zenoh_io import open_session
 from wrenchd.models.estimator.free_space import FreeSpaceModel
 from wrenchd.service.runtime.settings import ServiceSettings
@@ -44,7 +49,7 @@ from wrenchd.service.pipeline import ArmPipeline, Event
 from wrenchd.service.runtime.log_process import LogWriterProcess
 from wrenchd.service.runtime.scheduling import enter_realtime, normal_scheduling, realtime, realtime_below
 from wrenchd.service.pipeline.step1 import load_free_space
-from wrenchd.service.runtime.arm import ArmRuntime
+from wrenchd.service.runtime.arm import ROS_NODE_ID, ArmRuntime
 from wrenchd.service.runtime.plumbing import SWITCH_INTERVAL_S, Console
 from wrenchd.service.runtime.worker import WorkerProcess
 
@@ -76,6 +81,7 @@ class Daemon:
         self.wake = threading.Event()               # set by every arm's zenoh callback
         self.thread: threading.Thread | None = None
         self.session = None
+        self.ros_node = None                        # the rmw_zenoh node token, if any arm needs it
         self.worker: WorkerProcess | None = None
         self.arms: list[ArmRuntime] = []
         self.robots: list[subprocess.Popen] = []
@@ -120,6 +126,10 @@ class Daemon:
             normal_scheduling()
             raise
         try:
+            if any(a.keys.preset == "rmw_zenoh" for a in s.arms):     # the node, before its
+                self.ros_node = self.session.liveliness().declare_token(node_token(  # entities
+                    s.ros.domain_id, str(self.session.info.zid()), ROS_NODE_ID, s.ros.node,
+                    s.ros.namespace))
             for cfg in s.arms:
                 worker = self.worker if cfg.name in adapt else None
                 self.arms.append(ArmRuntime(cfg, s, self.session, worker, self.wake,
@@ -208,7 +218,7 @@ class Daemon:
             # arms take turns, at most BATCH samples each (samples that arrive meanwhile set
             # ``wake``); a backlog of one arm goes through its pipeline in one pass
             for k in range(0, depth, BATCH):
-                groups: dict[int, list[tuple[ArmRuntime, list[tuple[int, bytes]]]]] = {}
+                groups: dict[int, list[tuple[ArmRuntime, list[tuple]]]] = {}
                 for arm, items in queued:
                     chunk = items[k:k + BATCH]
                     if chunk:                          # arms of one model: stepped together
@@ -245,16 +255,18 @@ class Daemon:
             arm.zenoh_links["link_losses"] += int(lost)
             if before is None:                               # the first count: no change yet
                 continue
-            arm._publish_events([Event(time.time(), "zenoh_link", {
+            arm._publish_events([Event(arm.event_time(), "zenoh_link", {
                 "arm": arm.name, "routers": links[0], "peers": links[1], "lost": lost})])
 
     @staticmethod
-    def _handle_joint(group: list[tuple[ArmRuntime, list[tuple[int, bytes]]]]) -> None:
-        """Queued samples of several arms sharing a step-1 model: their recurrences run as
-        one batch (:meth:`ArmPipeline.process_many_joint`), the weights read once a step."""
+    def _handle_joint(group: list[tuple[ArmRuntime, list[tuple]]]) -> None:
+        """Queued samples ``(arrival [ns], payload, zenoh encoding)`` of several arms sharing a
+        step-1 model: their recurrences run as one batch
+        (:meth:`ArmPipeline.process_many_joint`), the weights read once a step."""
         try:
-            decoded = [[(arrived_ns, payload, msg) for arrived_ns, payload in chunk
-                        if (msg := arm._decode(payload)) is not None] for arm, chunk in group]
+            decoded = [[(arrived_ns, payload, msg, mark) for arrived_ns, payload, mark in chunk
+                        if (msg := arm._decode(payload, mark)) is not None]
+                       for arm, chunk in group]
             results = ArmPipeline.process_many_joint(
                 [arm.pipeline for arm, _ in group], [[d[2] for d in dec] for dec in decoded])
         except Exception as exc:  # noqa: BLE001 - never let one batch kill the arms
@@ -262,8 +274,8 @@ class Daemon:
                 arm.internal_error(exc)
             return
         for (arm, _), dec, res in zip(group, decoded, results):
-            for (arrived_ns, payload, msg), (est, events) in zip(dec, res):
-                arm.emit_safe(arrived_ns, payload, msg, est, events)
+            for (arrived_ns, payload, msg, mark), (est, events) in zip(dec, res):
+                arm.emit_safe(arrived_ns, payload, msg, est, events, mark)
 
     def run(self, duration_s: float | None = None) -> int:
         """Start, serve until SIGINT/SIGTERM or ``duration_s``, stop cleanly. Returns 0."""
@@ -317,6 +329,12 @@ class Daemon:
                 robot.wait(timeout=10.0)
             except subprocess.TimeoutExpired:
                 robot.kill()
+        if self.ros_node is not None:
+            try:
+                self.ros_node.undeclare()
+            except Exception:  # noqa: BLE001 - closing must go on
+                pass
+            self.ros_node = None
         if self.session is not None:
             self.session.close()
             self.session = None

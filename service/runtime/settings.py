@@ -24,6 +24,8 @@ from pydantic_settings import (BaseSettings, PydanticBaseSettingsSource, Setting
 
 from wrenchd.adapters.foxglove_live import FoxgloveConfig
 from wrenchd.adapters.mcap_log import LogConfig
+from wrenchd.adapters.messages import JOINT_STATE_TYPE, WRENCH_TYPE
+from wrenchd.adapters.rmw_zenoh import check_node, check_topic, topic_key
 from wrenchd.adapters.zenoh_io import ZenohConfig
 from wrenchd.models.errors import ConfigError
 from wrenchd.service.pipeline import PipelineConfig
@@ -34,27 +36,105 @@ DEFAULT_LISTEN = "tcp/127.0.0.1:7447"
 _KEY_PART = re.compile(r"^[A-Za-z0-9_\-.{}]+(/[A-Za-z0-9_\-.{}]+)*$")
 
 
+#: where each key preset puts the two ROS messages of an arm (wrenchd's own JSON keys: events,
+#: status, alive, setup, stay under ``{prefix}/{arm}/`` whatever the preset)
+KEY_PRESETS: dict[str, dict[str, str]] = {
+    # wrenchd's own layout
+    "wrenchd": {"measured_js": "{prefix}/{arm}/measured_js",
+                "wrench": "{prefix}/{arm}/wrenchd/measured_cf"},
+    # zenoh-bridge-ros2dds's default mapping: the ROS topic without its leading slash, no prefix
+    "ros2dds": {"measured_js": "{arm}/measured_js", "wrench": "{arm}/wrenchd/measured_cf"},
+    # rmw_zenoh: ROS topic names, turned into rmw_zenoh key expressions (adapters/rmw_zenoh.py)
+    "rmw_zenoh": {"measured_js": "/{arm}/measured_js", "wrench": "/{arm}/wrenchd/measured_cf"},
+}
+#: presets whose payloads are ROS 2 CDR
+CDR_PRESETS = ("ros2dds", "rmw_zenoh")
+_ROS_KEYS = ("measured_js", "wrench")
+
+
 class KeysConfig(BaseModel):
-    """Zenoh key templates; ``{prefix}`` and ``{arm}`` are substituted."""
+    """Zenoh key templates; ``{prefix}`` and ``{arm}`` are substituted.
+
+    ``preset`` picks where the joint states come from and the wrench goes
+    (:data:`KEY_PRESETS`); ``measured_js`` and ``wrench`` override it (with ``rmw_zenoh``
+    they are ROS topic names such as ``/{arm}/measured_js``). ``keys = "ros2dds"`` is short
+    for ``[arms.keys] preset = "ros2dds"``.
+    """
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    measured_js: str = "{prefix}/{arm}/measured_js"
-    wrench: str = "{prefix}/{arm}/wrenchd/measured_cf"
+    preset: Literal["wrenchd", "ros2dds", "rmw_zenoh"] = "wrenchd"
+    measured_js: str | None = None                # None: the preset's
+    wrench: str | None = None                     # None: the preset's
     events: str = "{prefix}/{arm}/wrenchd/events"
     status: str = "{prefix}/{arm}/wrenchd/status"
     alive: str = "{prefix}/{arm}/wrenchd/alive"
     setup: str = "{prefix}/{arm}/setup"           # set-up changes in (robot side, like measured_js)
 
-    @field_validator("*")
+    @model_validator(mode="before")
     @classmethod
-    def _key(cls, v: str) -> str:
-        if not _KEY_PART.match(v) or "*" in v or "$" in v:
+    def _shorthand(cls, data: Any) -> Any:
+        return {"preset": data} if isinstance(data, str) else data
+
+    @field_validator("measured_js", "wrench", "events", "status", "alive", "setup")
+    @classmethod
+    def _template(cls, v: str | None) -> str | None:
+        if v is not None and ("*" in v or "$" in v or "//" in v):
             raise ValueError(f"not a plain zenoh key expression: {v!r}")
         return v
 
-    def resolve(self, prefix: str, arm: str) -> dict[str, str]:
-        return {k: v.format(prefix=prefix, arm=arm) for k, v in self.model_dump().items()}
+    @model_validator(mode="after")
+    def _keys(self) -> KeysConfig:
+        for name in ("measured_js", "wrench", "events", "status", "alive", "setup"):
+            example = self.template(name).format(prefix="dvrk", arm="PSM1")
+            if self.preset == "rmw_zenoh" and name in _ROS_KEYS:
+                try:
+                    check_topic(example)
+                except ConfigError as exc:
+                    raise ValueError(f"{name}: {exc}") from None
+            elif not _KEY_PART.match(self.template(name)):
+                raise ValueError(f"{name}: not a plain zenoh key expression: "
+                                 f"{self.template(name)!r}")
+        return self
+
+    def template(self, name: str) -> str:
+        """The template of key ``name`` (the preset's where not given)."""
+        value = getattr(self, name)
+        return KEY_PRESETS[self.preset][name] if value is None else value
+
+    def topics(self, prefix: str, arm: str) -> dict[str, str]:
+        """With ``rmw_zenoh``: the ROS topic names of ``measured_js`` and ``wrench``."""
+        return {k: self.template(k).format(prefix=prefix, arm=arm) for k in _ROS_KEYS}
+
+    def resolve(self, prefix: str, arm: str, domain_id: int = 0) -> dict[str, str]:
+        """Every key of the arm; with ``rmw_zenoh`` the two ROS topics' key expressions in
+        ROS domain ``domain_id``."""
+        keys = {k: self.template(k).format(prefix=prefix, arm=arm)
+                for k in ("measured_js", "wrench", "events", "status", "alive", "setup")}
+        if self.preset == "rmw_zenoh":
+            keys["measured_js"] = topic_key(domain_id, keys["measured_js"], JOINT_STATE_TYPE)
+            keys["wrench"] = topic_key(domain_id, keys["wrench"], WRENCH_TYPE)
+        return keys
+
+
+class RosSettings(BaseModel):
+    """The daemon as a ROS 2 node over rmw_zenoh (arms whose keys preset is ``rmw_zenoh``)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    domain_id: int = Field(default=0, ge=0, le=232,
+                           description="the ROS graph's domain (ROS_DOMAIN_ID): the first chunk "
+                                       "of every rmw_zenoh key and token")
+    node: str = Field(default="wrenchd", description="the node's name")
+    namespace: str = Field(default="/", description="the node's namespace")
+
+    @model_validator(mode="after")
+    def _names(self) -> RosSettings:
+        try:
+            check_node(self.node, self.namespace)
+        except ConfigError as exc:
+            raise ValueError(str(exc)) from None
+        return self
 
 
 class ArmConfig(BaseModel):
@@ -63,8 +143,9 @@ class ArmConfig(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     name: str = Field(default="PSM1", pattern=r"^[A-Za-z0-9_\-]+$", description="arm name")
-    encoding: Literal["json", "cdr"] = Field(default="json",
-                                             description="wire encoding of inputs and wrenches")
+    encoding: Literal["json", "cdr"] = Field(
+        default="json", description="wire encoding of inputs and wrenches (default: cdr with the "
+                                    "keys presets ros2dds and rmw_zenoh, else json)")
     frame_id: str = Field(default="psm_base", description="frame of the published wrench")
     model: str = Field(default="seal",
                        description="step-1 weights: a shipped name (base, seal) or a checkpoint")
@@ -72,6 +153,25 @@ class ArmConfig(BaseModel):
                                         description="start from this Corr (e.g. a saved version)")
     keys: KeysConfig = Field(default_factory=KeysConfig)
     pipeline: PipelineConfig = Field(default_factory=PipelineConfig)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _cdr_by_default(cls, data: Any) -> Any:
+        """The ROS presets' encoding is CDR unless the file says otherwise (then refused)."""
+        if isinstance(data, dict) and "encoding" not in data:
+            keys = data.get("keys")
+            preset = (keys if isinstance(keys, str) else keys.get("preset")
+                      if isinstance(keys, dict) else getattr(keys, "preset", None))
+            if preset in CDR_PRESETS:
+                data = {**data, "encoding": "cdr"}
+        return data
+
+    @model_validator(mode="after")
+    def _preset_encoding(self) -> ArmConfig:
+        if self.keys.preset in CDR_PRESETS and self.encoding != "cdr":
+            raise ValueError(f"keys preset {self.keys.preset!r} carries ROS 2 CDR: encoding "
+                             f"must be 'cdr', got {self.encoding!r}")
+        return self
 
 
 class SimulatorSettings(BaseModel):
@@ -157,6 +257,7 @@ class ServiceSettings(BaseSettings):
                                    description="adapted Corr versions (default: log dir/models)")
     status_interval_s: float = Field(default=1.0, gt=0.0, description="status log period [s]")
     cpus: CpuPlacement = Field(default_factory=CpuPlacement)
+    ros: RosSettings = Field(default_factory=RosSettings)
     foxglove: FoxgloveConfig = Field(default_factory=FoxgloveConfig)   # live view (off by default)
     duration_s: float | None = Field(default=None, gt=0.0, description="stop after [s]")
 
@@ -167,6 +268,16 @@ class ServiceSettings(BaseSettings):
             raise ValueError("at least one arm is needed")
         if len(set(names)) != len(names):
             raise ValueError(f"arm names must be unique, got {names}")
+        return self
+
+    @model_validator(mode="after")
+    def _simulated_robot_keys(self) -> ServiceSettings:
+        if self.robot == "simulated":
+            other = [a.name for a in self.arms if a.keys.preset != "wrenchd"]
+            if other:
+                raise ValueError(f"the simulated robot publishes JSON on "
+                                 f"{{prefix}}/{{arm}}/measured_js: arms {other} with another "
+                                 f"keys preset need robot = \"external\"")
         return self
 
     @classmethod

@@ -12,6 +12,11 @@ Accepted versions are checkpointed as ``{models_dir}/{arm}/corr-v{N:04d}.pt`` (t
 estimator's safe checkpoint format) so any version can be loaded again (``corr_checkpoint``
 in the arm's settings). The worker exits by itself when the daemon dies (``kill -9``
 included): it watches its parent process.
+
+Clocks: the worker schedules rounds on its own clock (seconds since it started), which is what
+a round result's ``t`` holds; the pipeline stamps the ``round`` and ``model`` events with the
+arm's sample time at which it applies the result (:meth:`ArmPipeline.apply`), so every event
+of an arm is on the robot's clock.
 """
 
 from __future__ import annotations
