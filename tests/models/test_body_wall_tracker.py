@@ -43,7 +43,6 @@ def test_stiffness_step_across_an_announced_change():
     3 % of the truth (580, 900 N/m), and older samples are carried over by the difference."""
     t, q, dq = motion(200 * 120)
     rng = np.random.default_rng(1)
-    pressure = np.where(t < 60.0, 12.0, 20.0)
     tau = np.where((t < 60.0)[:, None], wall_torque(q, dq, 12.0), wall_torque(q, dq, 20.0))
     residual = tau + np.array([0.05, -0.03]) + 0.02 * rng.standard_normal(tau.shape)
     tracker = BodyWallTracker()
@@ -59,7 +58,6 @@ def test_stiffness_step_across_an_announced_change():
     # no bin straddles the change: the new segment's bins start at it
     starts = [b for b, s, _, _ in tracker.bins if s == 1]
     assert starts[0] == 60.0 and all(b >= 60.0 for b in starts)
-    assert (pressure[t >= 60.0] == 20.0).all()
     assert tracker.starts == [60.0]
     assert tracker.stiffnesses() == [tracker.stiffness(0), tracker.stiffness(1)]
 
