@@ -1,25 +1,21 @@
 """The daemon's live view in Foxglove: a Foxglove SDK WebSocket server on the daemon.
 
 ``wrenchd serve --foxglove-port PORT`` (or ``[foxglove] port``) starts the SDK's WebSocket
-server (protocol ``foxglove.websocket.v1``) on ``host`` (loopback by default) and advertises,
-per arm (``{arm}`` is the arm's name):
+server on ``host`` (loopback by default) and advertises, per arm (``{arm}`` is its name):
 
-===============================  ================================================  ===========
-topic                            message                                           rate
-===============================  ================================================  ===========
-``/{arm}/wrenchd/wrench``        JSON ``wrenchd.Wrench``: ``timestamp`` {sec,      ``rate_hz``
-                                 nsec}, ``frame_id``, ``force`` {x,y,z} [N],
-                                 ``torque`` {x,y,z} [N m]
-``/{arm}/wrenchd/external_torque`` ``foxglove.JointStates`` (protobuf): one joint    ``rate_hz``
-                                 per PSM joint, ``effort`` = external torque
-                                 [N m; N on the insertion joint]
-``/{arm}/wrenchd/gate``          JSON ``wrenchd.Gate``: ``state`` free|contact,    ``rate_hz`` and
-                                 ``contact`` (bool), ``score``, ``model_version``  every change
-``/{arm}/wrenchd/status``        JSON ``wrenchd.Status``: the daemon's status      its status
-                                 snapshot of the arm (``wrenchd status``)          interval
-``/{arm}/wrenchd/events``        ``foxglove.Log`` (protobuf): every event, errors  as they come
-                                 at level ERROR
-===============================  ================================================  ===========
+* ``/{arm}/wrenchd/wrench``, JSON ``wrenchd.Wrench`` at ``rate_hz``: ``timestamp``
+  {sec, nsec} (the sample's stamp), ``frame_id``, ``force`` {x,y,z} [N], ``torque``
+  {x,y,z} [N m];
+* ``/{arm}/wrenchd/external_torque``, ``foxglove.JointStates`` (protobuf) at ``rate_hz``: one
+  joint per PSM joint, ``effort`` = external torque [N m; N on the insertion joint];
+* ``/{arm}/wrenchd/gate``, JSON ``wrenchd.Gate`` at ``rate_hz`` and at every change of the
+  verdict: ``state`` free|contact, ``contact``, ``score``, ``model_version``;
+* ``/{arm}/wrenchd/status``, JSON ``wrenchd.Status``: the arm's status snapshot (as the zenoh
+  status queryable answers), every status interval;
+* ``/{arm}/wrenchd/events``, ``foxglove.Log`` (protobuf): every event, errors at level ERROR.
+
+The server speaks the subprotocol ``foxglove.sdk.v1`` (the Foxglove WebSocket protocol v1
+under its new name); clients that offer only ``foxglove.websocket.v1`` are refused by the SDK.
 
 The view never holds up estimation: the SDK's log calls only queue the message for each
 subscribed client (a slow client loses its oldest messages, never blocks the caller);
@@ -175,6 +171,7 @@ class ArmLiveView:
     def __init__(self, view: LiveView, arm: str, frame_id: str) -> None:
         fg = view._foxglove
         from foxglove.channels import JointStatesChannel, LogChannel
+        from foxglove.messages import JointState, JointStates, Log, LogLevel, Timestamp
 
         ctx = view.context
         self.arm, self.frame_id = arm, frame_id
@@ -184,8 +181,6 @@ class ArmLiveView:
         self._gate = fg.Channel(self.topics["gate"], schema=GATE_SCHEMA, context=ctx)
         self._status = fg.Channel(self.topics["status"], schema=STATUS_SCHEMA, context=ctx)
         self._events = LogChannel(self.topics["events"], context=ctx)
-        from foxglove.messages import JointState, JointStates, Log, LogLevel, Timestamp
-
         self._JointState, self._JointStates, self._Log = JointState, JointStates, Log
         self._Timestamp, self._LogLevel = Timestamp, LogLevel
         self.period_ns = int(round(1e9 / view.config.rate_hz))
