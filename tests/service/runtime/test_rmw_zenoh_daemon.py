@@ -10,7 +10,9 @@ One daemon serves two arms for all tests of this module:
   on every sample and no zenoh encoding (as rmw_zenoh publishes), stamped with the wall
   clock (``time.time_ns()``, real epoch stamps);
 * PSM2, JSON with wrenchd's keys: unmarked JSON samples, then CDR samples marked
-  ``application/cdr`` (decoded as CDR), then one marked ``image/png`` (refused).
+  ``application/cdr`` (decoded as CDR), then one marked ``image/png`` (refused);
+* PSM3, ``keys = "ros2dds"``: unmarked CDR on ``PSM3/measured_js``, as zenoh-bridge-ros2dds
+  maps the ROS topic ``/PSM3/measured_js``; wrenches on ``PSM3/wrenchd/measured_cf``.
 """
 
 from __future__ import annotations
@@ -112,6 +114,9 @@ min_train_samples = 200
 [[arms]]
 name = "PSM2"
 encoding = "json"
+[[arms]]
+name = "PSM3"
+keys = "ros2dds"
 """)
     js = run_scenario("trocar", SECONDS, 5, config=SimulatorConfig(publish_rate_hz=200.0),
                       contact_free_s=60.0).joint_states
@@ -123,7 +128,7 @@ encoding = "json"
     conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
     conf.insert_json5("scouting/multicast/enabled", "false")
     session = None
-    got: dict[str, list] = {"wrench": [], "events": [], "psm2": []}
+    got: dict[str, list] = {"wrench": [], "events": [], "psm2": [], "psm3": []}
     lock = threading.Lock()
 
     def keep(name):
@@ -135,15 +140,17 @@ encoding = "json"
         return on_sample
 
     try:
-        lines = [readline_within(daemon, 180.0, "the daemon") for _ in range(2)]
+        lines = [readline_within(daemon, 180.0, "the daemon") for _ in range(3)]
         assert JS_KEY in lines[0] and WRENCH_KEY in lines[0], lines
         session = zenoh.open(conf)
         subs = [session.declare_subscriber(WRENCH_KEY, keep("wrench")),
                 session.declare_subscriber("dvrk/*/wrenchd/events", keep("events")),
-                session.declare_subscriber("dvrk/PSM2/wrenchd/measured_cf", keep("psm2"))]
+                session.declare_subscriber("dvrk/PSM2/wrenchd/measured_cf", keep("psm2")),
+                session.declare_subscriber("PSM3/wrenchd/measured_cf", keep("psm3"))]
         pub = session.declare_publisher(JS_KEY)          # no encoding, like rmw_zenoh
         pub2 = session.declare_publisher("dvrk/PSM2/measured_js")
-        wait_for(lambda: pub.matching_status.matching and pub2.matching_status.matching,
+        pub3 = session.declare_publisher("PSM3/measured_js")
+        wait_for(lambda: all(p.matching_status.matching for p in (pub, pub2, pub3)),
                  30.0, "the daemon's subscribers")
         time.sleep(0.5)                                   # our subscribers' routes too
         gid = bytes(range(200, 216))                      # this publisher's (any 16 bytes)
@@ -159,6 +166,8 @@ encoding = "json"
             row = (js.names, js.position[i], js.velocity[i], js.effort[i])
             pub.put(cdr_joint_state(stamp, *row), attachment=attachment(i + 1, time.time_ns(),
                                                                          gid))
+            if i < PSM2_SAMPLES:
+                pub3.put(cdr_joint_state(stamp, *row))
             if i < PSM2_SAMPLES // 2:
                 pub2.put(json_joint_state(stamp, *row))
             elif i < PSM2_SAMPLES:
@@ -264,3 +273,13 @@ def test_events_are_json_on_the_arms_clock(run):
     logged = mcap_event_times(run["logs"], "PSM1")
     assert len(logged) >= len([e for e, _ in events if e["arm"] == "PSM1"])
     assert all(low * 1e9 <= t <= high * 1e9 for t in logged)
+
+
+def test_ros2dds_arm_takes_the_bridges_keys(run):
+    psm3 = run["got"]["psm3"]
+    assert len(psm3) == PSM2_SAMPLES
+    stamps = set(run["stamps"][:PSM2_SAMPLES])
+    for payload, encoding, att in psm3:
+        msg = STORE.deserialize_cdr(payload, "geometry_msgs/msg/WrenchStamped")
+        assert msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec in stamps
+        assert encoding.split(";")[0] == "application/cdr" and att is None
