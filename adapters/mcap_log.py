@@ -1,18 +1,32 @@
-"""The daemon's MCAP log: one file per arm, flushed every second, rotated, never fatal.
+"""The daemon's MCAP log: one ROS 2 bag file per arm, flushed every second, rotated, never fatal.
 
-Topics (JSON with JSON Schemas, so Foxglove plots them):
+The files are ROS 2 MCAP (profile ``ros2``, CDR messages, ``ros2msg`` schemas:
+:mod:`wrenchd.adapters.ros2_msgs`), so ``ros2 bag info`` / ``ros2 bag play``, Foxglove and
+``rosbags`` open them. Topics:
 
-=====================  ===================================================================
-``/psm/measured_js``   every accepted input, the session format of
-                       :mod:`wrenchd.adapters.mcap_session` (so a daemon log is a replayable session)
-``/wrenchd/estimate``  per sample: wrench, free-motion flag, gate score, model version,
-                       predicted and external joint torques (residual)
-``/wrenchd/events``    errors, gaps, contacts, drifts, rounds, model swaps, log problems
-``/wrenchd/status``    the status snapshot, once a second
-=====================  ===================================================================
+=====================  ===================================  ===================================
+``/psm/measured_js``   ``sensor_msgs/msg/JointState``       every accepted input, the session
+                                                            layout of
+                                                            :mod:`wrenchd.adapters.mcap_session`
+                                                            (a daemon log is a replayable
+                                                            session)
+``/wrenchd/estimate``  ``wrenchd_msgs/msg/Estimate``        per sample: wrench, free-motion
+                                                            flag, gate score, model version,
+                                                            predicted and external joint
+                                                            torques (residual)
+``/wrenchd/events``    ``wrenchd_msgs/msg/Event``           errors, gaps, contacts, drifts,
+                                                            rounds, model swaps, log problems:
+                                                            stamp, kind and the event's JSON
+``/wrenchd/status``    ``wrenchd_msgs/msg/Status``          the status snapshot (JSON), once a
+                                                            second
+=====================  ===================================  ===================================
 
 Metadata ``wrenchd.session`` (the same record as simulated sessions) says where the data
 came from and with which configuration.
+
+What the daemon hands over (:data:`Payload`) is CDR bytes, JSON text (a joint state as a JSON
+arm received it, an event or a status) or the name of a record maker in :data:`FORMATTERS`
+with its arguments; :meth:`McapLog.write` turns JSON into the topic's ROS 2 message.
 
 Crash safety: at least every ``flush_interval_s`` the open chunk is closed and written and the
 file flushed (optionally fsync'ed), so ``kill -9`` loses at most about that much; the session
@@ -37,73 +51,119 @@ import orjson
 from mcap.writer import CompressionType, Writer
 from pydantic import BaseModel, ConfigDict, Field
 
-from wrenchd.adapters.mcap_session import (JOINT_STATE_SCHEMA, SESSION_FORMAT, SESSION_METADATA_NAME,
-                                   TOPIC_JOINT_STATES)
-from wrenchd.adapters.messages import encode_joint_state
+from wrenchd.adapters import ros2_msgs as ros2
+from wrenchd.adapters.mcap_session import SESSION_FORMAT, SESSION_METADATA_NAME, TOPIC_JOINT_STATES
+from wrenchd.models.errors import DataError
 
 TOPIC_ESTIMATE = "/wrenchd/estimate"
 TOPIC_EVENTS = "/wrenchd/events"
 TOPIC_STATUS = "/wrenchd/status"
-_LIBRARY = "wrenchd.adapters.mcap_log/1"
-_DRAFT = "https://json-schema.org/draft/2020-12/schema"
-_V6 = {"type": "array", "items": {"type": ["number", "null"]}, "minItems": 6, "maxItems": 6}
-_ENCODE = json.JSONEncoder(separators=(",", ":"), allow_nan=False).encode
-
-ESTIMATE_SCHEMA: dict[str, Any] = {
-    "$schema": _DRAFT, "title": "wrenchd/Estimate",
-    "description": "Tip wrench [N, N m] (force in base axes, torque about the tip), gate "
-                   "verdict and joint torques [N m; N on insertion] of one sample.",
-    "type": "object",
-    "properties": {
-        "header": JOINT_STATE_SCHEMA["properties"]["header"],
-        "wrench": {"type": "object", "properties": {
-            k: {"type": "object", "properties": {a: {"type": "number"} for a in "xyz"}}
-            for k in ("force", "torque")}},
-        "free": {"type": "boolean"}, "score": {"type": "number"},
-        "model_version": {"type": "integer"}, "restarted": {"type": "boolean"},
-        "predicted": _V6, "external": _V6,
-    },
-    "required": ["header", "wrench", "free", "model_version", "predicted", "external"],
-}
-EVENT_SCHEMA: dict[str, Any] = {
-    "$schema": _DRAFT, "title": "wrenchd/Event",
-    "description": "Something that happened: kind (error, gap, contact_start, contact_end, "
-                   "drift, round, model, log_error, ...) with its details; t in session s.",
-    "type": "object", "properties": {"t": {"type": "number"}, "kind": {"type": "string"}},
-    "required": ["t", "kind"],
-}
-STATUS_SCHEMA: dict[str, Any] = {
-    "$schema": _DRAFT, "title": "wrenchd/Status",
-    "description": "Daemon status snapshot (the answer of the status queryable).",
-    "type": "object",
-}
+#: the ROS 2 message type of each topic
+TOPIC_TYPES: dict[str, str] = {TOPIC_JOINT_STATES: ros2.JOINT_STATE,
+                               TOPIC_ESTIMATE: ros2.ESTIMATE,
+                               TOPIC_EVENTS: ros2.EVENT, TOPIC_STATUS: ros2.STATUS}
+_LIBRARY = "wrenchd.adapters.mcap_log/2"
+_JSON_TOPICS = {TOPIC_EVENTS: ros2.EVENT, TOPIC_STATUS: ros2.STATUS}   # JSON text in a string
 
 
 def estimate_record(stamp_ns: int, frame_id: str, wrench: np.ndarray, free: bool, score: float,
                     model_version: int, restarted: bool, predicted: np.ndarray,
                     external: np.ndarray) -> bytes:
-    """One ``/wrenchd/estimate`` message (:data:`ESTIMATE_SCHEMA`); it is written for every
-    sample, so through orjson (arrays natively; a non-finite torque becomes ``null``, which
-    the schema allows). ``wrench`` must be finite (the pipeline never emits a non-finite one)."""
-    w = np.asarray(wrench, dtype=np.float64).tolist()
-    if not all(map(math.isfinite, w)):
-        raise ValueError("an estimate's wrench must be finite")
+    """One ``/wrenchd/estimate`` message (``wrenchd_msgs/msg/Estimate``, CDR).
+
+    ``wrench`` [N, N m] must be six finite numbers (the pipeline never emits another); a
+    non-finite joint torque stays NaN / Inf; a non-finite score is written as the cap, 1e9.
+    """
+    w = np.asarray(wrench, dtype=np.float64)
+    if w.shape != (6,) or not np.isfinite(w).all():
+        raise ValueError(f"an estimate's wrench must be 6 finite numbers, got {wrench!r}")
+    torques = [np.asarray(v, dtype=np.float64) for v in (predicted, external)]
+    if any(v.shape != (6,) for v in torques):
+        raise ValueError("predicted and external must hold 6 joint torques each")
     score = float(score)
     score = min(score, 1e9) if math.isfinite(score) else 1e9
-    sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
-    return orjson.dumps({
-        "header": {"stamp": {"sec": sec, "nanosec": nanosec}, "frame_id": frame_id},
-        "wrench": {"force": {"x": w[0], "y": w[1], "z": w[2]},
-                   "torque": {"x": w[3], "y": w[4], "z": w[5]}},
-        "free": bool(free), "score": score, "model_version": int(model_version),
-        "restarted": bool(restarted),
-        "predicted": np.ascontiguousarray(predicted, dtype=np.float64),
-        "external": np.ascontiguousarray(external, dtype=np.float64)},
-        option=orjson.OPT_SERIALIZE_NUMPY)
+    vector = ros2.message_class(ros2.VECTOR3)
+    f = w.tolist()
+    return ros2.serialize(ros2.message_class(ros2.ESTIMATE)(
+        header=ros2.header(stamp_ns, frame_id),
+        wrench=ros2.message_class(ros2.WRENCH)(force=vector(x=f[0], y=f[1], z=f[2]),
+                                               torque=vector(x=f[3], y=f[4], z=f[5])),
+        free=bool(free), score=score, model_version=int(model_version),
+        restarted=bool(restarted), predicted=torques[0], external=torques[1]))
 
 
-SCHEMAS = {TOPIC_JOINT_STATES: JOINT_STATE_SCHEMA, TOPIC_ESTIMATE: ESTIMATE_SCHEMA,
-           TOPIC_EVENTS: EVENT_SCHEMA, TOPIC_STATUS: STATUS_SCHEMA}
+def joint_state_record(stamp_ns: int, names, position, velocity, effort,
+                       frame_id: str = "") -> bytes:
+    """One ``/psm/measured_js`` message (``sensor_msgs/msg/JointState``, CDR)."""
+    return ros2.serialize(ros2.message_class(ros2.JOINT_STATE)(
+        header=ros2.header(stamp_ns, frame_id), name=[str(n) for n in names],
+        position=np.asarray(position, dtype=np.float64),
+        velocity=np.asarray(velocity, dtype=np.float64),
+        effort=np.asarray(effort, dtype=np.float64)))
+
+
+def event_record(stamp_ns: int, body: bytes | str) -> bytes:
+    """One ``/wrenchd/events`` message (``wrenchd_msgs/msg/Event``): ``body`` is the event's
+    JSON object (its ``kind`` is copied into the message's own field)."""
+    text = body.decode() if isinstance(body, (bytes, bytearray, memoryview)) else str(body)
+    event = orjson.loads(text)
+    kind = event.get("kind", "") if isinstance(event, dict) else ""
+    return ros2.serialize(ros2.message_class(ros2.EVENT)(
+        stamp=ros2.stamp(stamp_ns), kind=str(kind), json=text))
+
+
+def status_record(stamp_ns: int, body: bytes | str) -> bytes:
+    """One ``/wrenchd/status`` message (``wrenchd_msgs/msg/Status``): the snapshot's JSON."""
+    text = body.decode() if isinstance(body, (bytes, bytearray, memoryview)) else str(body)
+    orjson.loads(text)                                     # JSON, or a clear error
+    return ros2.serialize(ros2.message_class(ros2.STATUS)(stamp=ros2.stamp(stamp_ns), json=text))
+
+
+def json_record(topic: str, stamp_ns: int, text: bytes) -> bytes:
+    """The topic's ROS 2 message (CDR) of JSON ``text``: a joint state in the wire JSON of
+    :mod:`wrenchd.adapters.messages`, an event or status object, or an estimate's fields.
+
+    Raises:
+        DataError, ValueError: ``text`` is not what the topic carries.
+    """
+    if topic == TOPIC_JOINT_STATES:
+        from wrenchd.adapters.messages import decode_joint_state
+
+        m = decode_joint_state("json", text)
+        return joint_state_record(m.stamp_ns, m.name, m.position, m.velocity, m.effort,
+                                  m.frame_id)
+    if topic == TOPIC_EVENTS:
+        return event_record(stamp_ns, text)
+    if topic == TOPIC_STATUS:
+        return status_record(stamp_ns, text)
+    fields = orjson.loads(text)
+    if not isinstance(fields, dict):
+        raise DataError(f"{topic}: expected a JSON object, got {text[:40]!r}")
+    return ros2.serialize(ros2.from_fields(TOPIC_TYPES[topic], fields))
+
+
+def message_fields(message_encoding: str, schema_name: str, data: bytes) -> Any:
+    """A logged message as JSON-like values, whichever format wrote it: a JSON log's message
+    parsed; of a ROS 2 log, an event's or status's JSON object, any other message's fields
+    (:func:`wrenchd.adapters.ros2_msgs.to_fields`).
+
+    Raises:
+        DataError: the message cannot be decoded.
+    """
+    if message_encoding == "json":
+        try:
+            return orjson.loads(data)
+        except orjson.JSONDecodeError as exc:
+            raise DataError(f"not JSON: {exc}") from None
+    if message_encoding != ros2.MESSAGE_ENCODING:
+        raise DataError(f"unknown message encoding {message_encoding!r}")
+    message = ros2.deserialize(data, schema_name)
+    if schema_name in (ros2.EVENT, ros2.STATUS):
+        try:
+            return orjson.loads(message.json)
+        except orjson.JSONDecodeError as exc:
+            raise DataError(f"{schema_name}.json is not JSON: {exc}") from None
+    return ros2.to_fields(message)
 
 
 class LogConfig(BaseModel):
@@ -143,6 +203,8 @@ class McapLog:
         self.paths: list[Path] = []
         self.written = 0
         self.lost = 0
+        self.refused = 0                      # records that were not a topic's message
+        self.last_refusal: str | None = None
         self.problem: str | None = None       # set on failure, cleared when a file opens
         self._opened_at = 0.0
         self._flushed_at = 0.0
@@ -163,16 +225,14 @@ class McapLog:
             self._file = self.opener(path, "wb")
             self._writer = Writer(self._file, chunk_size=self.config.chunk_size,
                                   compression=CompressionType.ZSTD)
-            self._writer.start(profile="", library=_LIBRARY)
+            self._writer.start(profile=ros2.PROFILE, library=_LIBRARY)
             self._writer.add_metadata(SESSION_METADATA_NAME, {
                 "format": SESSION_FORMAT,
                 "json": json.dumps({"source": "wrenchd daemon", "arm": self.arm,
                                     **self.metadata}, sort_keys=True, default=str)})
-            self._channels = {}
-            for topic, schema in SCHEMAS.items():
-                sid = self._writer.register_schema(schema["title"], "jsonschema",
-                                                   json.dumps(schema).encode())
-                self._channels[topic] = self._writer.register_channel(topic, "json", sid)
+            channels = ros2.Ros2Channels(self._writer)
+            self._channels = {topic: channels.add(topic, typename)
+                              for topic, typename in TOPIC_TYPES.items()}
             self._finalize_chunk()
         except OSError as exc:
             self._fail(f"cannot open a log file in {self.config.directory}: {exc}")
@@ -223,9 +283,19 @@ class McapLog:
 
     # -- writing ------------------------------------------------------------------------
     def write(self, topic: str, stamp_ns: int, payload: bytes) -> bool:
-        """Append one message; False when it could not be written (counted in ``lost``)."""
+        """Append one message: ``payload`` is the topic's CDR message or JSON text made into
+        it (:func:`json_record`). False when it could not be written or made (counted in
+        ``lost``; those not made in ``refused`` too)."""
         if not self.config.enabled:
             return False
+        if not ros2.is_cdr(payload):
+            try:
+                payload = json_record(topic, stamp_ns, payload)
+            except (DataError, ValueError) as exc:   # orjson's error is a ValueError
+                self.refused += 1
+                self.lost += 1
+                self.last_refusal = f"{topic}: {exc}"
+                return False
         if self._writer is None and not self._open():
             self.lost += 1
             return False
@@ -239,7 +309,18 @@ class McapLog:
         return True
 
     def write_json(self, topic: str, stamp_ns: int, message: dict[str, Any]) -> bool:
-        return self.write(topic, stamp_ns, _ENCODE(message).encode())
+        """Append a message given as JSON-like values: an event's or status's object, or the
+        fields of the topic's message (left-out fields take ROS's defaults)."""
+        if topic in _JSON_TOPICS:
+            return self.write(topic, stamp_ns, orjson.dumps(message, default=str))
+        try:
+            payload = ros2.serialize(ros2.from_fields(TOPIC_TYPES[topic], message))
+        except DataError as exc:
+            self.refused += 1
+            self.lost += 1
+            self.last_refusal = f"{topic}: {exc}"
+            return False
+        return self.write(topic, stamp_ns, payload)
 
     def tick(self) -> None:
         """Flush and rotate when due; call often (e.g. after each sample)."""
@@ -255,17 +336,14 @@ class McapLog:
             self.close()
 
 
-def _joint_state_json(stamp_ns: int, names, position, velocity, effort, frame_id: str) -> bytes:
-    return encode_joint_state("json", stamp_ns, names, position, velocity, effort, frame_id)
-
-
 #: record makers a payload may name, so that what crosses to the log writer is plain values
 FORMATTERS: dict[str, Callable[..., bytes]] = {
     "estimate": estimate_record,
-    "joint_state": _joint_state_json,
+    "joint_state": joint_state_record,
 }
 
-#: a record: its bytes, or ``(name in FORMATTERS, args)`` to be made by the log writer
+#: a record: its bytes (CDR, or JSON made into the topic's message by :meth:`McapLog.write`),
+#: or ``(name in FORMATTERS, args)`` to be made by the log writer
 Payload = bytes | tuple[str, tuple]
 
 

@@ -1,17 +1,21 @@
-"""The MCAP session format: topics, JSON Schemas and the session metadata record.
+"""The MCAP session format: topics, their ROS 2 message types and the session metadata record.
 
-Sessions are MCAP files of JSON messages with JSON Schemas, readable by Foxglove Studio;
+Sessions are ROS 2 MCAP files (profile ``ros2``, CDR messages with ``ros2msg`` schemas, see
+:mod:`wrenchd.adapters.ros2_msgs`), readable by ``ros2 bag``, Foxglove and ``rosbags``;
 :mod:`wrenchd.adapters.mcap_session_writer` writes them and
-:mod:`wrenchd.adapters.mcap_session_reader` reads them.
+:mod:`wrenchd.adapters.mcap_session_reader` reads them, and the JSON sessions (JSON messages
+with JSON Schemas) that earlier versions wrote.
 
-Layout (every message has ``log_time == publish_time == round(t * 1e9)`` ns, sim time from 0):
+Layout (every message has ``log_time == publish_time == round(t * 1e9)`` ns, sim time from 0,
+equal to its header stamp):
 
-- ``/psm/measured_js`` (``sensor_msgs/JointState``-like): header, name, position, velocity,
-  effort, six joints each.
+- ``/psm/measured_js`` (``sensor_msgs/msg/JointState``): six joints, names, position, velocity,
+  effort.
 - ``/psm/truth/wrench`` and, where the scenario has a sensor, ``/psm/truth/sensor_wrench``
-  (``geometry_msgs/WrenchStamped``-like, frame ``psm_base``): true and sensed tip wrench.
-- ``/psm/truth/torques``: in_contact, true joint position / velocity / acceleration, internal
-  and external joint torque, and the per-effect torques under ``effects``.
+  (``geometry_msgs/msg/WrenchStamped``, frame ``psm_base``): true and sensed tip wrench.
+- ``/psm/truth/torques`` (``wrenchd_msgs/msg/JointTorqueTruth``): in_contact, true joint
+  position / velocity / acceleration, internal and external joint torque, and the torque of
+  each modelled effect (``effects``, by name).
 - Metadata record ``wrenchd.session``: ``{"format": "wrenchd.session/1", "json": <metadata>}``.
 
 Chunks are zstd-compressed and self-contained, so a file whose writer was killed still yields
@@ -22,7 +26,7 @@ library string is fixed.
 
 from __future__ import annotations
 
-from typing import Any
+from wrenchd.adapters import ros2_msgs as ros2
 
 TOPIC_JOINT_STATES = "/psm/measured_js"
 TOPIC_WRENCH = "/psm/truth/wrench"
@@ -31,78 +35,12 @@ TOPIC_TORQUES = "/psm/truth/torques"
 SESSION_METADATA_NAME = "wrenchd.session"
 SESSION_FORMAT = "wrenchd.session/1"
 NS_PER_S = 1_000_000_000
+WRENCH_FRAME = "psm_base"
 
-_VECTOR6 = {"type": "array", "items": {"type": "number"}, "minItems": 6, "maxItems": 6}
-_HEADER = {
-    "type": "object",
-    "properties": {
-        "stamp": {
-            "type": "object",
-            "properties": {
-                "sec": {"type": "integer", "minimum": 0},
-                "nanosec": {"type": "integer", "minimum": 0, "maximum": NS_PER_S - 1},
-            },
-            "required": ["sec", "nanosec"],
-        },
-        "frame_id": {"type": "string"},
-    },
-    "required": ["stamp", "frame_id"],
-}
-_XYZ = {
-    "type": "object",
-    "properties": {axis: {"type": "number"} for axis in "xyz"},
-    "required": ["x", "y", "z"],
-}
-_DRAFT = "https://json-schema.org/draft/2020-12/schema"
-
-JOINT_STATE_SCHEMA: dict[str, Any] = {
-    "$schema": _DRAFT,
-    "title": "sensor_msgs/JointState",
-    "description": "Measured PSM joint states: rad, rad, m, rad, rad, rad; "
-                   "efforts N m (joint 3: N).",
-    "type": "object",
-    "properties": {
-        "header": _HEADER,
-        "name": {"type": "array", "items": {"type": "string"}, "minItems": 6, "maxItems": 6},
-        "position": _VECTOR6,
-        "velocity": _VECTOR6,
-        "effort": _VECTOR6,
-    },
-    "required": ["header", "name", "position", "velocity", "effort"],
-}
-WRENCH_SCHEMA: dict[str, Any] = {
-    "$schema": _DRAFT,
-    "title": "geometry_msgs/WrenchStamped",
-    "description": "Tip wrench about the tip in base-frame axes: N and N m.",
-    "type": "object",
-    "properties": {
-        "header": _HEADER,
-        "wrench": {
-            "type": "object",
-            "properties": {"force": _XYZ, "torque": _XYZ},
-            "required": ["force", "torque"],
-        },
-    },
-    "required": ["header", "wrench"],
-}
-TORQUES_SCHEMA: dict[str, Any] = {
-    "$schema": _DRAFT,
-    "title": "wrenchd/JointTorqueTruth",
-    "description": "Simulator ground truth per joint: true motion; internal, external and "
-                   "per-effect torque (N m, joint 3: N).",
-    "type": "object",
-    "properties": {
-        "header": _HEADER,
-        "in_contact": {"type": "boolean"},
-        **dict.fromkeys(("position", "velocity", "acceleration", "internal", "external"), _VECTOR6),
-        "effects": {"type": "object", "additionalProperties": _VECTOR6},
-    },
-    "required": ["header", "in_contact", "position", "velocity", "acceleration",
-                 "internal", "external", "effects"],
-}
-TOPIC_SCHEMAS: dict[str, dict[str, Any]] = {
-    TOPIC_JOINT_STATES: JOINT_STATE_SCHEMA,
-    TOPIC_WRENCH: WRENCH_SCHEMA,
-    TOPIC_SENSOR_WRENCH: WRENCH_SCHEMA,
-    TOPIC_TORQUES: TORQUES_SCHEMA,
+#: the ROS 2 message type of each topic
+TOPIC_TYPES: dict[str, str] = {
+    TOPIC_JOINT_STATES: ros2.JOINT_STATE,
+    TOPIC_WRENCH: ros2.WRENCH_STAMPED,
+    TOPIC_SENSOR_WRENCH: ros2.WRENCH_STAMPED,
+    TOPIC_TORQUES: ros2.JOINT_TORQUE_TRUTH,
 }

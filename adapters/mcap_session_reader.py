@@ -1,7 +1,10 @@
 """The session reader: decodes an MCAP session file, recovering what a truncated file holds.
 
-It validates every message against the layout of :mod:`wrenchd.adapters.mcap_session` and
-reports what it found (:class:`ReadInfo`).
+It reads both formats, choosing by each channel's message encoding: ROS 2 CDR (``cdr``, the
+types of :mod:`wrenchd.adapters.mcap_session`) and the JSON that earlier versions wrote
+(``json``). It validates every message against the session layout and reports what it found
+(:class:`ReadInfo`). Daemon logs (:mod:`wrenchd.adapters.mcap_log`) read as sessions without
+truth.
 """
 
 from __future__ import annotations
@@ -17,9 +20,10 @@ import numpy as np
 import zstandard
 from mcap.exceptions import EndOfFile, InvalidMagic, McapError
 from mcap.opcode import Opcode
-from mcap.records import Channel, Chunk, Message, Metadata
+from mcap.records import Channel, Chunk, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader, breakup_chunk
 
+from wrenchd.adapters import mcap_session_cdr as cdr
 from wrenchd.adapters.mcap_session import (
     NS_PER_S,
     SESSION_FORMAT,
@@ -27,6 +31,7 @@ from wrenchd.adapters.mcap_session import (
     TOPIC_JOINT_STATES,
     TOPIC_SENSOR_WRENCH,
     TOPIC_TORQUES,
+    TOPIC_TYPES,
     TOPIC_WRENCH,
 )
 from wrenchd.models.errors import AdapterError, DataError
@@ -96,8 +101,12 @@ def _matrix(topic: str, name: str, rows: list[Any], log_times: list[int],
         ok = False
     if not ok:
         for row, log_time in zip(rows, log_times):
-            if (not isinstance(row, list) or len(row) != width or not all(
-                    isinstance(v, (int, float)) and not isinstance(v, bool) for v in row)):
+            if isinstance(row, np.ndarray):
+                bad = row.shape != (width,) or row.dtype.kind not in "fi"
+            else:
+                bad = (not isinstance(row, list) or len(row) != width or not all(
+                    isinstance(v, (int, float)) and not isinstance(v, bool) for v in row))
+            if bad:
                 raise _bad(topic, log_time, f"{name} must be {width} numbers, got {row!r}")
         raise _bad(topic, log_times[0], f"{name} must be {width} numbers")
     arr = arr.astype(np.float64)
@@ -151,23 +160,20 @@ class _Collector:
         self.names: list[str] | None = None
         self.effect_names: list[str] | None = None
 
-    def add(self, topic: str, log_times: list[int], datas: list[bytes]) -> None:
-        try:
-            messages = json.loads(b"[" + b",".join(datas) + b"]")
-        except ValueError:
-            for log_time, data in zip(log_times, datas):
-                try:
-                    json.loads(data)
-                except ValueError as exc:
-                    raise _bad(topic, log_time, f"not valid JSON ({exc})") from exc
-            raise _bad(topic, log_times[0], "batch is not valid JSON") from None
+    def add(self, topic: str, encoding: str, log_times: list[int], datas: list[bytes]) -> None:
         extract, names = _FIELDS[topic]
         rows = []
-        for message, log_time in zip(messages, log_times, strict=True):
-            try:
-                rows.append(extract(message))
-            except (KeyError, TypeError, ValueError) as exc:
-                raise _bad(topic, log_time, f"missing or malformed field: {exc!r}") from exc
+        if encoding == "cdr":
+            extract_cdr = cdr.FIELDS[topic]
+            for data, log_time in zip(datas, log_times, strict=True):
+                try:
+                    rows.append(extract_cdr(cdr.decode(topic, data)))
+                except DataError as exc:
+                    raise _bad(topic, log_time, str(exc)) from None
+                except ValueError as exc:
+                    raise _bad(topic, log_time, f"malformed field: {exc}") from None
+        else:
+            rows = self._json_rows(topic, extract, log_times, datas)
         columns = dict(zip(names, zip(*rows)))
         out = self.arrays[topic]
         out.setdefault("stamp", []).append(np.array(columns["stamp"], dtype=np.int64))
@@ -181,7 +187,26 @@ class _Collector:
         if topic == TOPIC_TORQUES:
             out.setdefault("in_contact", []).append(np.array(columns["in_contact"], dtype=bool))
             self._add_effects(columns["effects"], log_times)
-        self.counts[topic] += len(messages)
+        self.counts[topic] += len(rows)
+
+    @staticmethod
+    def _json_rows(topic: str, extract, log_times: list[int], datas: list[bytes]) -> list[tuple]:
+        try:
+            messages = json.loads(b"[" + b",".join(datas) + b"]")
+        except ValueError:
+            for log_time, data in zip(log_times, datas):
+                try:
+                    json.loads(data)
+                except ValueError as exc:
+                    raise _bad(topic, log_time, f"not valid JSON ({exc})") from exc
+            raise _bad(topic, log_times[0], "batch is not valid JSON") from None
+        rows = []
+        for message, log_time in zip(messages, log_times, strict=True):
+            try:
+                rows.append(extract(message))
+            except (KeyError, TypeError, ValueError) as exc:
+                raise _bad(topic, log_time, f"missing or malformed field: {exc!r}") from exc
+        return rows
 
     def _check_names(self, names: tuple[Any, ...], log_times: list[int]) -> None:
         if self.names is None:
@@ -220,7 +245,8 @@ def _scan(path: str, collector: _Collector
 
     Returns (truncated, messages, chunks, topics with a channel, metadata records by name).
     """
-    channels: dict[int, str] = {}
+    channels: dict[int, tuple[str, str]] = {}          # id: (topic, message encoding)
+    schemas: dict[int, str] = {}
     metadata: dict[str, dict[str, str]] = {}
     messages = chunks = 0
     truncated = False
@@ -257,23 +283,36 @@ def _scan(path: str, collector: _Collector
                 continue
             else:
                 inner = [record]
-            batches: dict[str, tuple[list[int], list[bytes]]] = {}
+            batches: dict[tuple[str, str], tuple[list[int], list[bytes]]] = {}
             for rec in inner:
-                if isinstance(rec, Channel):
-                    channels[rec.id] = rec.topic
-                    if rec.topic in _FIELDS and rec.message_encoding != "json":
-                        raise DataError(f"{path}: {rec.topic} has message encoding "
-                                           f"{rec.message_encoding!r}, expected 'json'")
+                if isinstance(rec, Schema):
+                    schemas[rec.id] = rec.name
+                elif isinstance(rec, Channel):
+                    channels[rec.id] = (rec.topic, rec.message_encoding)
+                    if rec.topic in _FIELDS:
+                        _check_channel(path, rec, schemas.get(rec.schema_id))
                 elif isinstance(rec, Message):
                     messages += 1
-                    topic = channels.get(rec.channel_id)
-                    if topic in _FIELDS:
-                        batch = batches.setdefault(topic, ([], []))
+                    channel = channels.get(rec.channel_id)
+                    if channel is not None and channel[0] in _FIELDS:
+                        batch = batches.setdefault(channel, ([], []))
                         batch[0].append(rec.log_time)
                         batch[1].append(rec.data)
-            for topic, (log_times, datas) in batches.items():
-                collector.add(topic, log_times, datas)
-    return truncated, messages, chunks, set(channels.values()), metadata
+            for (topic, encoding), (log_times, datas) in batches.items():
+                collector.add(topic, encoding, log_times, datas)
+    return truncated, messages, chunks, {t for t, _ in channels.values()}, metadata
+
+
+def _check_channel(path: str, channel: Channel, schema_name: str | None) -> None:
+    """A session topic's channel must be JSON, or CDR of the topic's ROS 2 type."""
+    if channel.message_encoding == "json":
+        return
+    if channel.message_encoding != "cdr":
+        raise DataError(f"{path}: {channel.topic} has message encoding "
+                        f"{channel.message_encoding!r}, expected 'cdr' (or 'json')")
+    if schema_name != TOPIC_TYPES[channel.topic]:
+        raise DataError(f"{path}: {channel.topic} carries {schema_name!r}, expected "
+                        f"{TOPIC_TYPES[channel.topic]!r}")
 
 
 def read_session_report(path: str | os.PathLike[str], *,

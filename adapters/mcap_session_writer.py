@@ -1,6 +1,6 @@
 """The session writer: streams joint states and their ground truth into an MCAP session file.
 
-The topics and schemas it writes are those of :mod:`wrenchd.adapters.mcap_session`.
+The topics and ROS 2 message types it writes are those of :mod:`wrenchd.adapters.mcap_session`.
 """
 
 from __future__ import annotations
@@ -13,33 +13,39 @@ from typing import IO, Any
 import numpy as np
 from mcap.writer import CompressionType, Writer
 
+from wrenchd.adapters import mcap_session_cdr as cdr
+from wrenchd.adapters import ros2_msgs as ros2
 from wrenchd.adapters.mcap_session import (
-    NS_PER_S,
     SESSION_FORMAT,
     SESSION_METADATA_NAME,
     TOPIC_JOINT_STATES,
-    TOPIC_SCHEMAS,
     TOPIC_SENSOR_WRENCH,
     TOPIC_TORQUES,
+    TOPIC_TYPES,
     TOPIC_WRENCH,
+    WRENCH_FRAME,
 )
 from wrenchd.models.errors import AdapterError, DataError
 from wrenchd.models.series import GroundTruth, JointStates, Session
 
 DEFAULT_CHUNK_SIZE = 1 << 20  # bytes of uncompressed messages per chunk
-_LIBRARY = "wrenchd.adapters.mcap_session/1"  # fixed, so equal sessions give equal bytes
-# Every number is written with 10 significant digits ("%.10g": relative error <= 5e-10,
-# e.g. <= 1e-9 rad at 2 rad), far below encoder resolution and current-sensing noise. It
-# keeps JSON numbers short and formats about twice as fast as json's shortest-repr floats,
-# which matters for hour-long sessions. Zeros are written as 0, integers without fraction.
-_FLOAT = "%.10g"
-_VEC = "[" + ",".join([_FLOAT] * 6) + "]"
-_STAMP = '{"header":{"stamp":{"sec":%d,"nanosec":%d},"frame_id":'
-_WRENCH_TEMPLATE = (_STAMP + '"psm_base"},"wrench":{"force":{"x":%.10g,"y":%.10g,"z":%.10g},'
-                    '"torque":{"x":%.10g,"y":%.10g,"z":%.10g}}}')
+_LIBRARY = "wrenchd.adapters.mcap_session/2"  # fixed, so equal sessions give equal bytes
+#: Every number is rounded to this many of float64's 52 fraction bits: relative error
+#: <= 2**-33 (1.2e-10; e.g. <= 2.4e-10 rad at 2 rad), far below encoder resolution and
+#: current-sensing noise. zstd then stores the zeroed low bytes almost for free, which keeps
+#: a session about a quarter smaller than with every bit.
+MANTISSA_BITS = 32
+_DROP = 52 - MANTISSA_BITS
 _MOTION_NAMES = ("position", "velocity", "acceleration", "internal_torque", "external_torque")
 
-_ENCODE = json.JSONEncoder(separators=(",", ":"), allow_nan=False).encode
+
+def round_mantissa(values: np.ndarray) -> np.ndarray:
+    """``values`` (float64) rounded to :data:`MANTISSA_BITS` fraction bits, to nearest."""
+    a = np.ascontiguousarray(values, dtype=np.float64)
+    bits = a.view(np.uint64)
+    rounded = ((bits + np.uint64(1 << (_DROP - 1)))
+               & np.uint64((1 << 64) - (1 << _DROP))).view(np.float64)
+    return np.where(np.isfinite(rounded), rounded, a)    # a carry into infinity stays exact
 
 
 def _check_finite(name: str, values: np.ndarray) -> None:
@@ -75,7 +81,7 @@ class SessionWriter:
         self._file: IO[bytes] | None = None
         self._writer: Writer | None = None
         self._channels: dict[str, int] = {}
-        self._schemas: dict[str, int] = {}
+        self._ros2: ros2.Ros2Channels | None = None
         self._last_ns = -1
         self._effect_names: tuple[str, ...] | None = None
         self._has_truth: bool | None = None
@@ -94,7 +100,8 @@ class SessionWriter:
             self._file = open(self.path, "wb")
             self._writer = Writer(self._file, chunk_size=self.chunk_size,
                                   compression=CompressionType.ZSTD)
-            self._writer.start(profile="", library=_LIBRARY)
+            self._writer.start(profile=ros2.PROFILE, library=_LIBRARY)
+            self._ros2 = ros2.Ros2Channels(self._writer)
         except OSError as exc:
             if self._file is not None:
                 self._file.close()
@@ -111,14 +118,9 @@ class SessionWriter:
 
     def _channel(self, topic: str) -> int:
         if topic not in self._channels:
-            writer = self._open_writer()
-            schema = TOPIC_SCHEMAS[topic]
-            name = schema["title"]
+            self._open_writer()
             try:
-                if name not in self._schemas:
-                    self._schemas[name] = writer.register_schema(
-                        name, "jsonschema", json.dumps(schema, sort_keys=True).encode())
-                self._channels[topic] = writer.register_channel(topic, "json", self._schemas[name])
+                self._channels[topic] = self._ros2.add(topic, TOPIC_TYPES[topic])
             except OSError as exc:
                 raise AdapterError(f"cannot write {self.path}: {exc}") from exc
         return self._channels[topic]
@@ -150,44 +152,36 @@ class SessionWriter:
                 f"sample times must be >= 0 and increase by >= 1 ns across blocks; block starts "
                 f"at {joint_states.t[0]!r} s after {self._last_ns} ns")
         self._check_block(joint_states, truth)
-        # (n, 2) sec and nanosec as floats (exact below 2**53), repeated in every message header
-        header = np.column_stack([stamps // NS_PER_S, stamps % NS_PER_S]).astype(np.float64)
-        columns = [header, joint_states.position, joint_states.velocity, joint_states.effort]
-        names = _ENCODE(list(joint_states.names)).replace("%", "%%")  # literal in a %-template
-        templates = [_STAMP + '""},"name":' + names + ',"position":' + _VEC + ',"velocity":'
-                     + _VEC + ',"effort":' + _VEC + "}"]
-        channels = [self._channels[TOPIC_JOINT_STATES]]
+        for name in ("position", "velocity", "effort"):
+            _check_finite(f"joint_states.{name}", getattr(joint_states, name))
+        times = stamps.tolist()
+        heads = cdr.headers(times, "")
+        topics = [(TOPIC_JOINT_STATES, cdr.joint_state_messages(
+            heads, joint_states.names, *(round_mantissa(getattr(joint_states, k))
+                                         for k in ("position", "velocity", "effort"))))]
         if truth is not None:
             wrenches = [("truth.external_wrench", TOPIC_WRENCH, truth.external_wrench)]
             if truth.sensor_wrench is not None:
                 wrenches.append(("truth.sensor_wrench", TOPIC_SENSOR_WRENCH, truth.sensor_wrench))
+            motion = [truth.position, truth.velocity, truth.acceleration, truth.internal_torque,
+                      truth.external_torque]
+            for name, values in zip(_MOTION_NAMES, motion):
+                _check_finite(f"truth.{name}", values)
+            for name, values in truth.effects.items():
+                _check_finite(f"truth.effects[{name}]", values)
+            wrench_heads = cdr.headers(times, WRENCH_FRAME)
             for name, topic, values in wrenches:
                 _check_finite(name, values)
-                columns += [header, values]
-                templates.append(_WRENCH_TEMPLATE)
-                channels.append(self._channels[topic])
-            motion = [truth.position, truth.velocity, truth.acceleration, truth.internal_torque,
-                      truth.external_torque, *truth.effects.values()]
-            for name, values in zip(_MOTION_NAMES + tuple(truth.effects), motion):
-                _check_finite(f"truth.{name}", values)
-            columns += [header, *motion]
-            effects = ",".join(_ENCODE(k).replace("%", "%%") + ":" + _VEC for k in truth.effects)
-            torques = ('""},"in_contact":%s,"position":' + _VEC + ',"velocity":' + _VEC
-                       + ',"acceleration":' + _VEC + ',"internal":' + _VEC + ',"external":' + _VEC
-                       + ',"effects":{' + effects + "}}")
-            channels.append(self._channels[TOPIC_TORQUES])
-            sample = "\n".join(templates) + "\n" + _STAMP
-            by_contact = {c: sample + torques.replace("%s", c, 1) for c in ("false", "true")}
-            block = "\n".join(by_contact["true" if c else "false"]
-                              for c in truth.in_contact.tolist())
-        else:
-            block = "\n".join(templates * n)
-        # One %-format per block turns every number into text in C; "\n" separates the
-        # messages (JSON escapes any newline inside a string).
-        args = np.concatenate(columns, axis=1)
-        messages = (block % tuple(args.ravel().tolist())).encode().split(b"\n")
+                topics.append((topic, cdr.wrench_messages(wrench_heads, round_mantissa(values))))
+            topics.append((TOPIC_TORQUES, cdr.torque_messages(
+                heads, truth.in_contact, [round_mantissa(m) for m in motion],
+                {k: round_mantissa(v) for k, v in truth.effects.items()})))
+        # sample by sample, every topic's message in turn (the order a live recorder sees)
+        channels = [self._channels[topic] for topic, _ in topics]
+        messages = [m for sample in zip(*(ms for _, ms in topics)) for m in sample]
         try:
-            _add_messages(writer, channels * n, np.repeat(stamps, len(channels)).tolist(), messages)
+            _add_messages(writer, channels * n, np.repeat(stamps, len(channels)).tolist(),
+                          messages)
         except OSError as exc:
             raise AdapterError(f"cannot write {self.path}: {exc}") from exc
         self._last_ns = int(stamps[-1])

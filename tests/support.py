@@ -77,13 +77,21 @@ def children_of(pid: int) -> list[int]:
 
 
 def read_mcap(path: Path) -> dict[str, list[bytes]]:
-    """Every message of an MCAP file, by topic, in file order."""
+    """Every message of an MCAP file, by topic, in file order, as JSON text: a JSON log's
+    message as stored; of a ROS 2 (CDR) log, an event's or status's JSON, any other
+    message's fields (:func:`wrenchd.adapters.mcap_log.message_fields`)."""
+    import orjson
     from mcap.reader import make_reader
+
+    from wrenchd.adapters.mcap_log import message_fields
 
     out: dict[str, list[bytes]] = {}
     with open(path, "rb") as f:
-        for _schema, channel, message in make_reader(f).iter_messages():
-            out.setdefault(channel.topic, []).append(message.data)
+        for schema, channel, message in make_reader(f).iter_messages():
+            data = message.data
+            if channel.message_encoding != "json":
+                data = orjson.dumps(message_fields(channel.message_encoding, schema.name, data))
+            out.setdefault(channel.topic, []).append(data)
     return out
 
 

@@ -1,9 +1,9 @@
-"""A replay's estimates and events as MCAP (the daemon log's topics and schemas).
+"""A replay's estimates and events as MCAP (the daemon log's topics and ROS 2 messages).
 
-``/wrenchd/estimate`` per estimated sample and ``/wrenchd/events``, JSON with the JSON
-Schemas of :mod:`wrenchd.adapters.mcap_log`; metadata ``wrenchd.replay`` holds the policy, the
-pipeline config and the source. No wall-clock time is written: equal replays give equal
-bytes.
+``/wrenchd/estimate`` per estimated sample and ``/wrenchd/events``, the ROS 2 messages of
+:mod:`wrenchd.adapters.mcap_log` (a ROS 2 bag: ``ros2`` profile, CDR); metadata
+``wrenchd.replay`` holds the policy, the pipeline config and the source. No wall-clock time is
+written: equal replays give equal bytes.
 """
 
 from __future__ import annotations
@@ -14,8 +14,9 @@ import os
 import numpy as np
 from mcap.writer import CompressionType, Writer
 
-from wrenchd.adapters.mcap_log import (ESTIMATE_SCHEMA, EVENT_SCHEMA, TOPIC_ESTIMATE, TOPIC_EVENTS,
-                                       estimate_record)
+from wrenchd.adapters.mcap_log import (TOPIC_ESTIMATE, TOPIC_EVENTS, TOPIC_TYPES, estimate_record,
+                                       event_record)
+from wrenchd.adapters.ros2_msgs import PROFILE, Ros2Channels
 from wrenchd.models.errors import AdapterError
 from wrenchd.service.replay.loop import ReplayResult
 
@@ -29,15 +30,13 @@ def write_replay_mcap(path: str | os.PathLike[str], r: ReplayResult,
     try:
         with open(path, "wb") as f:
             w = Writer(f, compression=CompressionType.ZSTD)
-            w.start(profile="", library="wrenchd.service.replay.loop/1")
+            w.start(profile=PROFILE, library="wrenchd.service.replay.loop/2")
             w.add_metadata("wrenchd.replay", {"json": json.dumps(
                 {"policy": r.policy, "config": r.config, "source": r.meta.get("source"),
                  **(metadata or {})}, sort_keys=True, default=str)})
-            ids = {}
-            for topic, schema in ((TOPIC_ESTIMATE, ESTIMATE_SCHEMA), (TOPIC_EVENTS, EVENT_SCHEMA)):
-                sid = w.register_schema(schema["title"], "jsonschema",
-                                        json.dumps(schema, sort_keys=True).encode())
-                ids[topic] = w.register_channel(topic, "json", sid)
+            channels = Ros2Channels(w)
+            ids = {topic: channels.add(topic, TOPIC_TYPES[topic])
+                   for topic in (TOPIC_ESTIMATE, TOPIC_EVENTS)}
             stamps = r.stamp_ns
             score = np.minimum(r.score, 1e9)
             events = sorted(((max(int(round(e.t * 1e9)), 0), n, e) for n, e in
@@ -62,7 +61,7 @@ def write_replay_mcap(path: str | os.PathLike[str], r: ReplayResult,
 def _event(w: Writer, channel: int, item) -> None:
     stamp, _, ev = item
     body = json.dumps(nan_to_none(ev.to_json()), sort_keys=True, default=str)
-    w.add_message(channel, stamp, body.encode(), stamp)
+    w.add_message(channel, stamp, event_record(stamp, body), stamp)
 
 
 def nan_to_none(x):

@@ -4,7 +4,8 @@
 
 =================================  ==========================================================
 ``path/to/file.mcap``              a simulated session (with truth) or a daemon log (its
-                                   ``/psm/measured_js``; no truth)
+                                   ``/psm/measured_js``; no truth), ROS 2 (CDR) or the
+                                   former JSON format
 ``sim:SCENARIO:DURATION[:SEED]``   simulate now, e.g. ``sim:insufflation-change:300:3``
                                    (duration in s, seed default 0); truth included
 ``path/to/file.csv``               a real recording, WPI (21 columns, 200 Hz) or the paper's
@@ -88,22 +89,25 @@ def announced_changes(session: Session) -> list[tuple[float, dict]]:
 
 
 def logged_setup_changes(path: str) -> list[tuple[float, dict]]:
-    """The ``setup_change`` events of a daemon log (MCAP, ``/wrenchd/events``): their sample
-    time [s] and detail. Files without that topic give an empty list."""
-    import orjson
+    """The ``setup_change`` events of a daemon log (MCAP, ``/wrenchd/events``; a ROS 2 log's
+    ``wrenchd_msgs/msg/Event`` or a JSON log's message): their sample time [s] and detail.
+    Files without that topic give an empty list."""
     from mcap.exceptions import McapError
     from mcap.reader import NonSeekingReader
 
-    from wrenchd.adapters.mcap_log import TOPIC_EVENTS
+    from wrenchd.adapters.mcap_log import TOPIC_EVENTS, message_fields
+    from wrenchd.models.errors import DataError
 
     out = []
     with open(path, "rb") as f:
         # read in order, to the end or to where a crashed daemon's file stops
         try:
-            for _, _, message in NonSeekingReader(f).iter_messages(topics=[TOPIC_EVENTS]):
+            for schema, channel, message in NonSeekingReader(f).iter_messages(
+                    topics=[TOPIC_EVENTS]):
                 try:
-                    event = orjson.loads(message.data)
-                except orjson.JSONDecodeError:
+                    event = message_fields(channel.message_encoding,
+                                           schema.name if schema else "", message.data)
+                except DataError:
                     continue
                 if isinstance(event, dict) and event.get("kind") == "setup_change":
                     detail = {k: v for k, v in event.items() if k not in ("t", "kind")}

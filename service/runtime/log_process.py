@@ -6,8 +6,9 @@ which the estimating thread waits for.
 :class:`LogWriterProcess` keeps only an append per record there: a sender thread hands the
 queued records over every ``interval_s`` as one pickled batch of plain values (bytes, or the
 name of a formatter in :data:`wrenchd.adapters.mcap_log.FORMATTERS` with its arguments as lists:
-~1 us per sample to pickle, against ~17 us for NumPy arrays), and the writer process formats
-them and writes the arm's :class:`~wrenchd.adapters.mcap_log.McapLog` (flushed every
+~1 us per sample to pickle, against ~17 us for NumPy arrays), and the writer process makes
+them into ROS 2 messages (CDR; a joint state, event or status handed over as JSON is converted
+there) and writes the arm's :class:`~wrenchd.adapters.mcap_log.McapLog` (flushed every
 ``flush_interval_s``, rotated, never fatal).
 
 Crash safety: if the daemon dies (even ``kill -9``), the writer reads the end of

@@ -1,9 +1,10 @@
-"""MCAP session files: round trip, viewer compatibility, determinism, truncation, bad input."""
+"""MCAP session files: ROS 2 round trip, read by ROS tools' libraries, the former JSON format,
+determinism, truncation, bad input."""
 
 from __future__ import annotations
 
 import json
-import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,21 +13,30 @@ from mcap.reader import make_reader
 from mcap.records import Chunk, Message
 from mcap.stream_reader import breakup_chunk
 from mcap.writer import Writer
+from mcap_ros2.decoder import DecoderFactory
+from rosbags.highlevel import AnyReader
+from rosbags.rosbag2 import Reader
+from rosbags.typesys import Stores, get_typestore
 
+from tests.adapters.json_mcap import write_json_session
+from wrenchd.adapters import ros2_msgs as ros2
 from wrenchd.adapters.mcap_session import (
     SESSION_FORMAT,
     TOPIC_JOINT_STATES,
     TOPIC_SENSOR_WRENCH,
     TOPIC_TORQUES,
+    TOPIC_TYPES,
     TOPIC_WRENCH,
 )
 from wrenchd.adapters.mcap_session_reader import read_session, read_session_report
-from wrenchd.adapters.mcap_session_writer import SessionWriter, write_session
+from wrenchd.adapters.mcap_session_writer import SessionWriter, round_mantissa, write_session
 from wrenchd.models.errors import AdapterError, DataError
 from wrenchd.models.series import GroundTruth, JointStates, Session
 
-# The writer keeps 10 significant digits ("%.10g"): relative error <= 5e-10.
-RTOL = 5.0001e-10
+# The writer rounds every number to 32 fraction bits: relative error <= 2**-33.
+RTOL = 2.0**-33
+# The former JSON sessions kept 10 significant digits: relative error <= 5e-10.
+JSON_RTOL = 5.0001e-10
 
 
 def make_session(n: int = 300, *, seed: int = 0, sensor: bool = True,
@@ -50,27 +60,27 @@ def make_session(n: int = 300, *, seed: int = 0, sensor: bool = True,
     return Session(js, gt, metadata)
 
 
-def assert_sessions_close(got: Session, want: Session) -> None:
+def assert_sessions_close(got: Session, want: Session, rtol: float = RTOL) -> None:
     np.testing.assert_array_equal(got.joint_states.t, want.joint_states.t)
     assert got.joint_states.names == want.joint_states.names
     for name in ("position", "velocity", "effort"):
         np.testing.assert_allclose(getattr(got.joint_states, name),
-                                   getattr(want.joint_states, name), rtol=RTOL, atol=0)
+                                   getattr(want.joint_states, name), rtol=rtol, atol=0)
     if want.truth is None:
         assert got.truth is None
         return
     g, w = got.truth, want.truth
     for name in ("position", "velocity", "acceleration", "internal_torque", "external_torque",
                  "external_wrench"):
-        np.testing.assert_allclose(getattr(g, name), getattr(w, name), rtol=RTOL, atol=0)
+        np.testing.assert_allclose(getattr(g, name), getattr(w, name), rtol=rtol, atol=0)
     np.testing.assert_array_equal(g.in_contact, w.in_contact)
     assert list(g.effects) == list(w.effects)
     for name in w.effects:
-        np.testing.assert_allclose(g.effects[name], w.effects[name], rtol=RTOL, atol=0)
+        np.testing.assert_allclose(g.effects[name], w.effects[name], rtol=rtol, atol=0)
     if w.sensor_wrench is None:
         assert g.sensor_wrench is None
     else:
-        np.testing.assert_allclose(g.sensor_wrench, w.sensor_wrench, rtol=RTOL, atol=0)
+        np.testing.assert_allclose(g.sensor_wrench, w.sensor_wrench, rtol=rtol, atol=0)
 
 
 def test_round_trip_with_truth_effects_and_metadata(tmp_path):
@@ -110,81 +120,95 @@ def test_sample_times_survive_exactly(tmp_path):
                                   session.joint_states.t)
 
 
-def test_opens_with_the_mcap_library_reader(tmp_path):
+def test_opens_with_the_mcap_library_reader_as_ros2(tmp_path):
     session = make_session(120)
     path = tmp_path / "s.mcap"
     write_session(path, session)
     with open(path, "rb") as f:
-        reader = make_reader(f)
-        assert reader.get_header().library == "wrenchd.adapters.mcap_session/1"
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        header = reader.get_header()
+        assert header.profile == "ros2" and header.library == "wrenchd.adapters.mcap_session/2"
         summary = reader.get_summary()
         assert summary is not None
-        assert {s.encoding for s in summary.schemas.values()} == {"jsonschema"}
-        assert {c.message_encoding for c in summary.channels.values()} == {"json"}
-        assert sorted(c.topic for c in summary.channels.values()) == sorted(
-            [TOPIC_JOINT_STATES, TOPIC_WRENCH, TOPIC_SENSOR_WRENCH, TOPIC_TORQUES])
+        assert {s.encoding for s in summary.schemas.values()} == {"ros2msg"}
+        assert {c.message_encoding for c in summary.channels.values()} == {"cdr"}
+        assert {c.topic: summary.schemas[c.schema_id].name
+                for c in summary.channels.values()} == TOPIC_TYPES
         assert summary.statistics.message_count == 4 * 120
-        counts: dict[str, int] = {}
-        for _schema, channel, _message in reader.iter_messages():
-            counts[channel.topic] = counts.get(channel.topic, 0) + 1
-        assert counts == dict.fromkeys(counts, 120) and len(counts) == 4
+        # the mcap library's own ROS 2 decoder, from the schemas in the file
+        rows: dict[str, list] = {}
+        for _schema, channel, message, decoded in reader.iter_decoded_messages():
+            stamp = decoded.header.stamp
+            assert message.log_time == message.publish_time
+            assert message.log_time == stamp.sec * 1_000_000_000 + stamp.nanosec
+            assert decoded.header.frame_id == ("psm_base" if "wrench" in channel.topic else "")
+            rows.setdefault(channel.topic, []).append(decoded)
         records = {m.name: m.metadata for m in reader.iter_metadata()}
+    assert {t: len(r) for t, r in rows.items()} == dict.fromkeys(TOPIC_TYPES, 120)
     assert records["wrenchd.session"]["format"] == SESSION_FORMAT
     assert json.loads(records["wrenchd.session"]["json"]) == session.metadata
+    js, truth = session.joint_states, session.truth
+    np.testing.assert_allclose([m.effort for m in rows[TOPIC_JOINT_STATES]], js.effort,
+                               rtol=RTOL, atol=0)
+    assert rows[TOPIC_JOINT_STATES][7].name == list(js.names)
+    w = rows[TOPIC_SENSOR_WRENCH][9].wrench
+    np.testing.assert_allclose([w.force.x, w.force.y, w.force.z, w.torque.x, w.torque.y,
+                                w.torque.z], truth.sensor_wrench[9], rtol=RTOL, atol=0)
+    torques = rows[TOPIC_TORQUES][11]
+    assert torques.in_contact == bool(truth.in_contact[11])
+    assert [e.name for e in torques.effects] == list(truth.effects)
+    np.testing.assert_allclose(torques.effects[1].torque, truth.effects["seal"][11],
+                               rtol=RTOL, atol=0)
 
 
-def _check_structure(value, schema, where="") -> None:
-    """The JSON Schema subset our schemas use: type, properties, required, items, sizes."""
-    kind = schema.get("type")
-    if kind == "object":
-        assert isinstance(value, dict), where
-        for key in schema.get("required", []):
-            assert key in value, f"{where}.{key} missing"
-        for key, item in value.items():
-            sub = schema.get("properties", {}).get(key, schema.get("additionalProperties"))
-            if isinstance(sub, dict):
-                _check_structure(item, sub, f"{where}.{key}")
-    elif kind == "array":
-        assert isinstance(value, list), where
-        assert schema.get("minItems", 0) <= len(value) <= schema.get("maxItems", math.inf), where
-        for i, item in enumerate(value):
-            _check_structure(item, schema["items"], f"{where}[{i}]")
-    elif kind == "number":
-        assert isinstance(value, (int, float)) and not isinstance(value, bool), where
-        assert math.isfinite(value), where
-    elif kind == "integer":
-        assert isinstance(value, int) and not isinstance(value, bool), where
-        assert schema.get("minimum", -math.inf) <= value <= schema.get("maximum", math.inf), where
-    elif kind == "boolean":
-        assert isinstance(value, bool), where
-    elif kind == "string":
-        assert isinstance(value, str), where
-
-
-def test_every_message_validates_against_its_channel_schema(tmp_path):
-    """Checked with the subset of JSON Schema the channels use (``_check_structure``);
-    jsonschema itself is not among the locked dependencies."""
+def test_rosbags_opens_it_as_a_ros2_bag_from_the_file_alone(tmp_path):
+    """rosbags' rosbag2 Reader opens the bare .mcap; its AnyReader builds every type from the
+    definitions in the file (an empty type store to start from) and decodes every message."""
+    session = make_session(50)
     path = tmp_path / "s.mcap"
-    write_session(path, make_session(60))
-    with open(path, "rb") as f:
-        for schema, channel, message in make_reader(f).iter_messages():
-            definition = json.loads(schema.data)
-            decoded = json.loads(message.data)
-            _check_structure(decoded, definition, channel.topic)
-            stamp = decoded["header"]["stamp"]
-            assert message.log_time == message.publish_time
-            assert message.log_time == stamp["sec"] * 1_000_000_000 + stamp["nanosec"]
-            frame = "psm_base" if "wrench" in channel.topic else ""
-            assert decoded["header"]["frame_id"] == frame
-            # and the check refuses what the schema forbids: a missing field, a wrong type
-            broken = json.loads(message.data)
-            del broken["header"]
-            with pytest.raises(AssertionError):
-                _check_structure(broken, definition, channel.topic)
-            broken = json.loads(message.data)
-            broken["header"]["stamp"]["sec"] = "12"
-            with pytest.raises(AssertionError):
-                _check_structure(broken, definition, channel.topic)
+    write_session(path, session)
+    with Reader(path) as bag:
+        assert {c.topic: (c.msgtype, c.msgcount) for c in bag.connections} == {
+            t: (k, 50) for t, k in TOPIC_TYPES.items()}
+        assert all(c.ext.serialization_format == "cdr" for c in bag.connections)
+        qos = bag.connections[0].ext.offered_qos_profiles[0]
+        assert (qos.reliability.name, qos.durability.name) == ("RELIABLE", "VOLATILE")
+    with AnyReader([path], default_typestore=get_typestore(Stores.EMPTY)) as bag:
+        got: dict[str, list] = {}
+        for connection, _, raw in bag.messages():
+            got.setdefault(connection.topic, []).append(bag.deserialize(raw, connection.msgtype))
+    np.testing.assert_allclose([m.position for m in got[TOPIC_JOINT_STATES]],
+                               session.joint_states.position, rtol=RTOL, atol=0)
+    np.testing.assert_allclose([m.external for m in got[TOPIC_TORQUES]],
+                               session.truth.external_torque, rtol=RTOL, atol=0)
+    np.testing.assert_allclose([m.wrench.force.z for m in got[TOPIC_WRENCH]],
+                               session.truth.external_wrench[:, 2], rtol=RTOL, atol=0)
+
+
+def test_rounding_keeps_32_fraction_bits_to_nearest():
+    x = np.array([1.0, np.pi, -np.e * 1e5, 1e-300, 0.0, -0.0, np.inf, np.nan,
+                  np.nextafter(2.0, 0.0), np.finfo(np.float64).max])
+    r = round_mantissa(x)
+    finite = np.isfinite(x)
+    np.testing.assert_allclose(r[finite], x[finite], rtol=RTOL, atol=0)
+    low = r[:9][finite[:9]].view(np.uint64) & np.uint64((1 << 20) - 1)
+    assert not low.any()                                   # 20 low bits cleared
+    assert r[8] == 2.0                                     # rounds up across a power of two
+    assert r[9] == x[9] and np.isposinf(r[6]) and np.isnan(r[7])   # no carry into infinity
+    assert np.signbit(r[5])
+
+
+def test_a_former_json_session_reads_as_before(tmp_path):
+    """Sessions written before the ROS 2 format (JSON, 10 significant digits) still read, and
+    to the same session as the ROS 2 file of the same data."""
+    session = make_session(80, seed=3)
+    write_json_session(tmp_path / "old.mcap", session)
+    write_session(tmp_path / "new.mcap", session)
+    old, info = read_session_report(tmp_path / "old.mcap")
+    assert not info.truncated and info.topic_messages[TOPIC_TORQUES] == 80
+    assert old.metadata == session.metadata
+    assert_sessions_close(old, session, rtol=JSON_RTOL)
+    assert_sessions_close(old, read_session(tmp_path / "new.mcap"), rtol=JSON_RTOL + RTOL)
 
 
 def test_same_session_gives_identical_bytes_whatever_the_blocks(tmp_path):
@@ -281,7 +305,8 @@ def test_not_mcap_raises_adapter_error(tmp_path):
 
 
 def _write_raw_joint_states(path, messages: list[dict]) -> None:
-    """A hand-made MCAP with the given measured_js payloads, 5 ms apart."""
+    """A hand-made MCAP in the former JSON format with the given measured_js payloads, 5 ms
+    apart."""
     with open(path, "wb") as f:
         writer = Writer(f)
         writer.start()
@@ -361,5 +386,59 @@ def test_stamps_that_do_not_increase_raise_data_error(tmp_path):
     messages = [_js_message(k) for k in range(5)]
     messages[3]["header"] = messages[2]["header"]
     _write_raw_joint_states(tmp_path / "dup.mcap", messages)
+    with pytest.raises(DataError, match="strictly increasing"):
+        read_session(tmp_path / "dup.mcap")
+
+
+def _write_raw_cdr(path, payloads: list[bytes], schema: str = ros2.JOINT_STATE,
+                   encoding: str = "cdr") -> None:
+    """A hand-made ROS 2 MCAP with the given measured_js payloads, 5 ms apart."""
+    with open(path, "wb") as f:
+        writer = Writer(f)
+        writer.start(profile="ros2", library="test")
+        sid = writer.register_schema(schema, "ros2msg", ros2.full_definition(schema).encode())
+        channel = writer.register_channel(TOPIC_JOINT_STATES, encoding, sid)
+        for k, payload in enumerate(payloads):
+            writer.add_message(channel, k * 5_000_000, payload, k * 5_000_000)
+        writer.finish()
+
+
+def _cdr_js(k: int, position=None, effort=None, stamp_ns=None) -> bytes:
+    fields = _js_message(k)
+    return ros2.serialize(ros2.message_class(ros2.JOINT_STATE)(
+        header=ros2.header(k * 5_000_000 if stamp_ns is None else stamp_ns, ""),
+        name=fields["name"], position=np.array(position or fields["position"], dtype=float),
+        velocity=np.zeros(6), effort=np.array(effort or fields["effort"], dtype=float)))
+
+
+@pytest.mark.parametrize("payload, pattern", [
+    (_cdr_js(3, position=[0.0] * 5), "position must be 6 numbers"),
+    (_cdr_js(3, effort=[1.0, float("nan"), 0, 0, 0, 0]), "effort contains NaN"),
+    (b"\x00\x01\x00\x00\x07", "not a CDR sensor_msgs/msg/JointState"),
+])
+def test_invalid_cdr_messages_raise_data_error_naming_topic_and_time(tmp_path, payload, pattern):
+    payloads = [_cdr_js(k) for k in range(8)]
+    payloads[3] = payload
+    _write_raw_cdr(tmp_path / "bad.mcap", payloads)
+    with pytest.raises(DataError, match=pattern) as err:
+        read_session(tmp_path / "bad.mcap")
+    assert TOPIC_JOINT_STATES in str(err.value) and "15000000 ns" in str(err.value)
+
+
+def test_a_cdr_joint_state_file_reads_and_bad_channels_are_refused(tmp_path):
+    _write_raw_cdr(tmp_path / "ok.mcap", [_cdr_js(k) for k in range(10)])
+    got = read_session(tmp_path / "ok.mcap")
+    assert got.truth is None and got.joint_states.names == ("a", "b", "c", "d", "e", "f")
+    np.testing.assert_array_equal(got.joint_states.position[:, 2], 0.1 * np.arange(10))
+    _write_raw_cdr(tmp_path / "type.mcap", [b"\x00\x01\x00\x00"], schema=ros2.WRENCH_STAMPED)
+    with pytest.raises(DataError, match="carries 'geometry_msgs/msg/WrenchStamped', expected "
+                                        "'sensor_msgs/msg/JointState'"):
+        read_session(tmp_path / "type.mcap")
+    _write_raw_cdr(tmp_path / "enc.mcap", [b"\x00"], encoding="protobuf")
+    with pytest.raises(DataError, match="message encoding 'protobuf'"):
+        read_session(tmp_path / "enc.mcap")
+    payloads = [_cdr_js(k) for k in range(5)]
+    payloads[3] = _cdr_js(3, stamp_ns=2 * 5_000_000)
+    _write_raw_cdr(tmp_path / "dup.mcap", payloads)
     with pytest.raises(DataError, match="strictly increasing"):
         read_session(tmp_path / "dup.mcap")

@@ -7,6 +7,8 @@ import sys
 import pytest
 from mcap.reader import make_reader
 
+from wrenchd.adapters.messages import decode_joint_state
+
 SCENARIOS = ["free-space", "free-space-seal", "trocar", "trocar-contact",
              "insufflation-change", "instrument-drift"]
 
@@ -55,14 +57,14 @@ def test_simulate_writes_an_mcap_any_reader_opens(tmp_path, scenario):
         topics = {ch.topic: ch for ch in summary.channels.values()}
         assert {"/psm/measured_js", "/psm/truth/torques", "/psm/truth/wrench"} <= set(topics)
         for ch in topics.values():
-            assert ch.message_encoding == "json"
-            assert summary.schemas[ch.schema_id].encoding == "jsonschema"
+            assert ch.message_encoding == "cdr"
+            assert summary.schemas[ch.schema_id].encoding == "ros2msg"
         counts = summary.statistics.channel_message_counts
         js_id = topics["/psm/measured_js"].id
         assert counts[js_id] == 12 * 200
         first = next(reader.iter_messages(topics=["/psm/measured_js"]))
-        msg = json.loads(first[2].data)
-        assert len(msg["position"]) == 6 and msg["header"]["stamp"]["sec"] == 0
+        msg = decode_joint_state("cdr", first[2].data)
+        assert len(msg.position) == 6 and msg.stamp_ns < 10**9
         meta = {m.name: m.metadata for m in reader.iter_metadata()}
         assert json.loads(meta["wrenchd.session"]["json"])["scenario"]["name"] == scenario
 

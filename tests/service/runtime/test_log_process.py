@@ -1,7 +1,6 @@
 """The log writer process: records reach the MCAP files, the daemon's view follows, the files
 are finished when the daemon dies, and a writer that dies is replaced."""
 
-import json
 import os
 import signal
 import subprocess
@@ -15,7 +14,7 @@ from mcap.reader import make_reader
 from wrenchd.adapters.mcap_log import TOPIC_ESTIMATE, LogConfig, McapLog, estimate_record
 from wrenchd.adapters.mcap_session import TOPIC_JOINT_STATES
 from wrenchd.adapters.mcap_session_reader import read_session_report
-from wrenchd.adapters.messages import encode_joint_state
+from wrenchd.adapters.messages import decode_joint_state, encode_joint_state
 from wrenchd.models.series import JOINT_NAMES
 from wrenchd.service.runtime.log_process import LogWriterProcess
 
@@ -71,7 +70,7 @@ def test_records_are_formatted_and_written_by_the_process(tmp_path):
     assert est[5] == estimate_record(int(5 * 5e6), "psm_base", [5.0] * 6, True, 0.5, 3, False,
                                      np.zeros(6), np.ones(6))
     js = [d for topic, _, d in messages(logs[1].path) if topic == TOPIC_JOINT_STATES]
-    assert js[2] == encode_joint_state("json", int(2 * 5e6), JOINT_NAMES, [0.2] * 6,
+    assert js[2] == encode_joint_state("cdr", int(2 * 5e6), JOINT_NAMES, [0.2] * 6,
                                        np.zeros(6), np.ones(6), "base")
 
 
@@ -126,4 +125,4 @@ def test_a_dead_writer_is_reported_and_replaced(tmp_path):
     assert not info.truncated
     assert second.joint_states.position[-1, 0] == 0.1 * 249
     assert log.written + log.lost >= 500 and log.lost >= 1
-    assert json.loads(messages(log.paths[1])[0][2])["header"]["frame_id"] == "base"
+    assert decode_joint_state("cdr", messages(log.paths[1])[0][2]).frame_id == "base"
