@@ -1,0 +1,71 @@
+"""ROS 2 message definitions of the logs: the standard types match ROS 2's, the complete
+definitions follow rosbag2's ros2msg layout and parse in rosbags and the mcap ROS 2 decoder,
+messages build from JSON-like fields."""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+import pytest
+from mcap_ros2._dynamic import generate_dynamic
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+from wrenchd.adapters import ros2_msgs as ros2
+from wrenchd.models.errors import DataError
+
+STANDARD = [t for t in ros2.MSG_TEXT if t not in ros2.OWN_TYPES]
+
+
+@pytest.mark.parametrize("typename", STANDARD)
+def test_standard_texts_have_the_fields_of_ros2_humble(typename):
+    humble = get_typestore(Stores.ROS2_HUMBLE)
+    ours = get_types_from_msg(ros2.MSG_TEXT[typename], typename)[typename]
+    assert ours[1] == humble.fielddefs[typename][1]
+
+
+def test_full_definition_follows_rosbag2s_layout():
+    text = ros2.full_definition(ros2.ESTIMATE)
+    sections = text.split("\n" + "=" * 80 + "\n")
+    assert sections[0] == ros2.MSG_TEXT[ros2.ESTIMATE]          # the type first, no delimiter
+    named = [s.split("\n", 1)[0] for s in sections[1:]]
+    # depth first, each dependency once, a type's direct dependencies in name order
+    assert named == ["MSG: geometry_msgs/msg/Wrench", "MSG: geometry_msgs/msg/Vector3",
+                     "MSG: std_msgs/msg/Header", "MSG: builtin_interfaces/msg/Time"]
+    assert sections[2] == "MSG: geometry_msgs/msg/Vector3\n" + ros2.MSG_TEXT[ros2.VECTOR3]
+    assert ros2.dependencies(ros2.JOINT_TORQUE_TRUTH) == [
+        "std_msgs/msg/Header", "wrenchd_msgs/msg/TorqueEffect"]
+    assert not re.search(r"^MSG: \w+/\w+$", text, re.M)        # always pkg/msg/Type
+
+
+@pytest.mark.parametrize("typename", list(ros2.MSG_TEXT))
+def test_every_definition_parses_in_rosbags_and_the_mcap_decoder(typename):
+    text = ros2.full_definition(typename)
+    parsed = get_types_from_msg(text, typename)
+    assert typename in parsed
+    assert parsed[typename][1] == ros2.typestore().fielddefs[typename][1]
+    assert typename in generate_dynamic(typename, text)
+
+
+def test_messages_from_fields_take_ros_defaults_and_refuse_unknown_fields():
+    msg = ros2.from_fields(ros2.ESTIMATE, {"header": {"stamp": {"sec": 3}}, "free": True,
+                                           "external": [1, 2, 3, 4, 5, 6]})
+    back = ros2.to_fields(ros2.deserialize(ros2.serialize(msg), ros2.ESTIMATE))
+    assert back["header"] == {"stamp": {"sec": 3, "nanosec": 0}, "frame_id": ""}
+    assert back["external"] == [1.0, 2.0, 3.0, 4.0, 5.0, 6.0]
+    assert back["predicted"] == [0.0] * 6 and back["score"] == 0.0 and back["free"] is True
+    effects = ros2.from_fields(ros2.JOINT_TORQUE_TRUTH, {"effects": [{"name": "seal"}]}).effects
+    assert effects[0].name == "seal" and np.array_equal(effects[0].torque, np.zeros(6))
+    with pytest.raises(DataError, match=r"no field\(s\) \['speed'\]"):
+        ros2.from_fields(ros2.ESTIMATE, {"speed": 1})
+    with pytest.raises(DataError, match="predicted must be 6 numbers"):
+        ros2.from_fields(ros2.ESTIMATE, {"predicted": [1, 2]})
+    with pytest.raises(DataError, match="header must be an object"):
+        ros2.from_fields(ros2.ESTIMATE, {"header": 5})
+
+
+def test_cdr_is_told_from_json_and_garbage_is_a_data_error():
+    data = ros2.serialize(ros2.from_fields(ros2.STATUS, {"json": "{}"}))
+    assert ros2.is_cdr(data) and not ros2.is_cdr(b'{"a": 1}') and not ros2.is_cdr(b" {}")
+    with pytest.raises(DataError, match="not a CDR wrenchd_msgs/msg/Estimate"):
+        ros2.deserialize(data[:6], ros2.ESTIMATE)
