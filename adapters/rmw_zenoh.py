@@ -1,10 +1,11 @@
 """ROS 2 over zenoh as ``rmw_zenoh`` puts it on the wire: key expressions, liveliness tokens,
 publisher GIDs and the attachment of every published sample (pure functions, no session).
 
-Source: ``docs/design.md`` of the ros2/rmw_zenoh repository (the stored snapshot at commit
-99a6a2bd10b949052f4f12c5854825dc005e95a5, which describes the zenoh 1.x, Jazzy-era design and
-the key-less attachment of rmw_zenoh PR #601, taken into the humble branch's 0.1.2 release of
-2025-06-19), sections "Topic and Service name mapping to Zenoh key expressions", "Graph Cache"
+Source: ``docs/design.md`` of the ros2/rmw_zenoh repository, read at commit
+99a6a2bd10b949052f4f12c5854825dc005e95a5 (the snapshot does not record its branch; its text is
+the zenoh 1.x design of the Jazzy-era releases with the key-less attachment of rmw_zenoh
+PR #601, which the humble branch took in its 0.1.2 release of 2025-06-19; the rolling
+branch's design.md of October 2024 still lacked these sections), sections "Topic and Service name mapping to Zenoh key expressions", "Graph Cache"
 and "Publishers". What the document leaves to the code was read in the same repository's
 ``rmw_zenoh_cpp/src/detail``: ``liveliness_utils.cpp`` (a GID is the XXH3-128 of the entity's
 token, low half first; the QoS part of a token names only what differs from the default
