@@ -126,8 +126,8 @@ def repeatability(js: JointStates, min_period_s: float = 2.0,
     floor = np.sqrt(np.mean((tau[p:] - tau[:-p]) ** 2, axis=0)) / np.sqrt(2.0)
     prev = np.zeros_like(tau[p:])
     count = np.zeros((len(tau) - p, 1))
-    for k in range(1, len(tau) // p + 1):
-        idx = np.arange(p, len(tau)) - k * p
+    for n in range(1, len(tau) // p + 1):
+        idx = np.arange(p, len(tau)) - n * p
         ok = idx >= 0
         prev[ok] += tau[idx[ok]]
         count[ok] += 1

@@ -63,6 +63,7 @@ def test_repeatability_of_a_periodic_recording():
     tau = np.sin(2 * np.pi * t / 5.0)[:, None] + rng.normal(0.0, 0.01, (len(t), 6))
     rep = repeatability(JointStates(t, q, np.zeros_like(q), tau))
     assert rep["period_s"] == pytest.approx(5.0)
+    assert rep["position_rms"] < 1e-9
     np.testing.assert_allclose(rep["floor_rmse"], 0.01, rtol=0.1)
     noise = JointStates(t, rng.normal(size=q.shape), np.zeros_like(q), tau)
     assert repeatability(noise) is None
