@@ -6,9 +6,12 @@ rosbag2 MCAP storage writes them: profile ``ros2``, every message CDR (message e
 ``cdr``), every schema the type's complete message definition (schema encoding ``ros2msg``):
 the type's .msg text, then for each type it depends on (depth first, each once, in name order,
 as rosbag2's ``LocalMessageDefinitionSource`` walks them) a line of 80 ``=``, a line
-``MSG: pkg/msg/Type`` and that type's text (rosbag2's ``docs/message_definition_encoding.md``).
-So ``ros2 bag info`` / ``ros2 bag play``, Foxglove, ``rosbags`` and the mcap library's ROS 2
-decoder open them without wrenchd.
+``MSG: pkg/Type`` and that type's text (rosbag2's ``docs/message_definition_encoding.md``). The
+``MSG:`` line names the type as the fields reference it, ``pkg/Type`` (a field type without
+package is completed with the referring type's package), as rosbag2 writes it: Foxglove's
+parser (``@foxglove/rosmsg``) matches the two names literally and fails on ``pkg/msg/Type``
+lines below ``pkg/Type`` fields. So ``ros2 bag info`` / ``ros2 bag play``, Foxglove,
+``rosbags`` and the mcap library's ROS 2 decoder open the files without wrenchd.
 
 Types: the standard ``sensor_msgs/msg/JointState`` and ``geometry_msgs/msg/WrenchStamped`` and
 the project's own package ``wrenchd_msgs`` (:data:`MSG_TEXT`). CDR (de)serialisation is the
@@ -108,20 +111,22 @@ _DTYPES = {"bool": np.bool_, "byte": np.uint8, "char": np.uint8, "float32": np.f
 _CDR_LE = b"\x00\x01"        # the encapsulation header of little-endian CDR
 
 
-def _full_name(name: str, package: str) -> str:
-    parts = name.split("/")
-    if len(parts) == 1:
-        return f"{package}/msg/{name}"
-    if len(parts) == 2:
-        return f"{parts[0]}/msg/{parts[1]}"
-    return name
+def _referenced(name: str, package: str) -> str:
+    """A field's type as rosbag2 names the dependency: as written, with the package added
+    where it has none."""
+    return name if "/" in name else f"{package}/{name}"
+
+
+def _full_name(referenced: str) -> str:
+    parts = referenced.split("/")
+    return f"{parts[0]}/msg/{parts[-1]}"
 
 
 def dependencies(typename: str) -> list[str]:
-    """The types ``typename``'s text names directly, as ``pkg/msg/Type``, in name order."""
+    """The types ``typename``'s text names directly, as it names them, in name order."""
     package = typename.split("/")[0]
     text = re.sub(r"#.*", "", MSG_TEXT[typename])
-    return sorted({_full_name(t, package) for t in _FIELD_TYPE.findall(text)
+    return sorted({_referenced(t, package) for t in _FIELD_TYPE.findall(text)
                    if t not in _PRIMITIVES})
 
 
@@ -135,7 +140,7 @@ def full_definition(typename: str) -> str:
         for dep in dependencies(name):
             if dep not in seen:
                 seen.add(dep)
-                out += "\n" + "=" * 80 + "\nMSG: " + dep + "\n" + walk(dep)
+                out += "\n" + "=" * 80 + "\nMSG: " + dep + "\n" + walk(_full_name(dep))
         return out
 
     return walk(typename)

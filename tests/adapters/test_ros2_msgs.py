@@ -29,13 +29,15 @@ def test_full_definition_follows_rosbag2s_layout():
     sections = text.split("\n" + "=" * 80 + "\n")
     assert sections[0] == ros2.MSG_TEXT[ros2.ESTIMATE]          # the type first, no delimiter
     named = [s.split("\n", 1)[0] for s in sections[1:]]
-    # depth first, each dependency once, a type's direct dependencies in name order
-    assert named == ["MSG: geometry_msgs/msg/Wrench", "MSG: geometry_msgs/msg/Vector3",
-                     "MSG: std_msgs/msg/Header", "MSG: builtin_interfaces/msg/Time"]
-    assert sections[2] == "MSG: geometry_msgs/msg/Vector3\n" + ros2.MSG_TEXT[ros2.VECTOR3]
+    # depth first, each dependency once, a type's direct dependencies in name order, each
+    # named as the fields name it (what rosbag2 writes, what Foxglove's parser matches)
+    assert named == ["MSG: geometry_msgs/Wrench", "MSG: geometry_msgs/Vector3",
+                     "MSG: std_msgs/Header", "MSG: builtin_interfaces/Time"]
+    assert sections[2] == "MSG: geometry_msgs/Vector3\n" + ros2.MSG_TEXT[ros2.VECTOR3]
     assert ros2.dependencies(ros2.JOINT_TORQUE_TRUTH) == [
-        "std_msgs/msg/Header", "wrenchd_msgs/msg/TorqueEffect"]
-    assert not re.search(r"^MSG: \w+/\w+$", text, re.M)        # always pkg/msg/Type
+        "std_msgs/Header", "wrenchd_msgs/TorqueEffect"]
+    field_types = set(re.findall(r"^([a-z_]+/[A-Za-z0-9]+)(?:\[\])? ", text, re.M))
+    assert {n.removeprefix("MSG: ") for n in named} == field_types
 
 
 @pytest.mark.parametrize("typename", list(ros2.MSG_TEXT))
