@@ -20,7 +20,7 @@ import numpy as np
 import zstandard
 from mcap.exceptions import EndOfFile, InvalidMagic, McapError
 from mcap.opcode import Opcode
-from mcap.records import Channel, Chunk, Message, Metadata, Schema
+from mcap.records import Channel, Chunk, Header, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader, breakup_chunk
 
 from wrenchd.adapters import mcap_session_cdr as cdr
@@ -400,3 +400,22 @@ def read_session(path: str | os.PathLike[str], *, allow_truncated: bool = True) 
     See :func:`read_session_report` for truncation handling and errors.
     """
     return read_session_report(path, allow_truncated=allow_truncated)[0]
+
+
+def is_wrenchd_file(path: str | os.PathLike[str]) -> bool:
+    """True when the MCAP file at ``path`` was written by wrenchd (a session, a daemon log or a
+    replay output, in either format): its header names a wrenchd writer as its library. Only
+    the header is read, so a truncated file is told too; a ROS 2 bag that ``ros2 bag record``
+    wrote is not wrenchd's, though both have the ``ros2`` profile.
+
+    Raises:
+        AdapterError: the file cannot be read or is not MCAP.
+    """
+    try:
+        with open(path, "rb") as file:
+            record = next(StreamReader(_StrictStream(file)).records)
+    except OSError as exc:
+        raise AdapterError(f"cannot open {path}: {exc}") from exc
+    except (McapError, EndOfFile, StopIteration, ValueError, struct.error) as exc:
+        raise AdapterError(f"{path} is not an MCAP file: {exc!r}") from exc
+    return isinstance(record, Header) and record.library.startswith("wrenchd.")

@@ -442,3 +442,22 @@ def test_a_cdr_joint_state_file_reads_and_bad_channels_are_refused(tmp_path):
     _write_raw_cdr(tmp_path / "dup.mcap", payloads)
     with pytest.raises(DataError, match="strictly increasing"):
         read_session(tmp_path / "dup.mcap")
+
+
+def test_wrenchd_files_are_told_from_other_ros2_bags(tmp_path):
+    from wrenchd.adapters.mcap_session_reader import is_wrenchd_file
+    from wrenchd.adapters.rosbag import write_joint_states_bag
+
+    session = make_session(300)
+    write_session(tmp_path / "s.mcap", session, chunk_size=16 * 1024)
+    write_json_session(tmp_path / "old.mcap", session)
+    (tmp_path / "cut.mcap").write_bytes((tmp_path / "s.mcap").read_bytes()[:5000])
+    bag = write_joint_states_bag(tmp_path / "recorded.mcap", session.joint_states)
+    with open(bag, "rb") as f:
+        assert make_reader(f).get_header().profile == "ros2"      # rosbags' own writer
+    assert [is_wrenchd_file(tmp_path / n) for n in ("s.mcap", "old.mcap", "cut.mcap")] == [
+        True, True, True]
+    assert not is_wrenchd_file(bag)
+    (tmp_path / "garbage.mcap").write_bytes(b"\x89MCAP0\r\nxx")
+    with pytest.raises(AdapterError, match="not an MCAP file"):
+        is_wrenchd_file(tmp_path / "garbage.mcap")
