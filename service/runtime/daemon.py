@@ -99,9 +99,11 @@ class Daemon:
         sys.setswitchinterval(SWITCH_INTERVAL_S)
         self.realtime_priority = self._realtime_priority()   # checked before loading
         if s.cpus.daemon is not None:
-            # before any thread or process is made: they all inherit it (the worker resets
-            # its own when cpus.worker is set)
-            os.sched_setaffinity(0, s.cpus.daemon)
+            # every thread the process has (NumPy's BLAS may have started some at import) and,
+            # by inheritance, every thread and process made from here (the worker resets its
+            # own when cpus.worker is set)
+            for tid in os.listdir("/proc/self/task"):
+                os.sched_setaffinity(int(tid), s.cpus.daemon)
         adapt = {a.name: a.pipeline.adaptation for a in s.arms
                  if a.pipeline.adaptation.enabled and a.pipeline.policy.name != "frozen"}
         loaded: dict[str, FreeSpaceModel] = {}           # one copy of each distinct model
