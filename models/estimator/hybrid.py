@@ -202,23 +202,57 @@ class HybridStep1:
         return self._combine(xb, acc).torque, state
 
     # -- persistence ---------------------------------------------------------------------
+    def arrays(self) -> dict[str, np.ndarray]:
+        """Every learned array by name (float64): acceleration filter, coverage, residual."""
+        out = {"acceleration_weights": self.acceleration.weights,
+               "coverage_points": self.coverage.points, "coverage_mean": self.coverage.mean,
+               "coverage_scale": self.coverage.scale, "in_mean": self.residual.in_mean,
+               "in_scale": self.residual.in_scale, "out_scale": self.residual.out_scale}
+        for k, (w, b) in enumerate(self.residual.layers):
+            out[f"layer{k}.weight"], out[f"layer{k}.bias"] = w, b
+        return {k: np.ascontiguousarray(v, dtype=np.float64) for k, v in out.items()}
+
+    def description(self) -> dict[str, Any]:
+        """Everything else, as JSON values: format, config, physics parameters, rate, info."""
+        return {"format": FORMAT, "version": FORMAT_VERSION,
+                "config": self.config.model_dump(mode="json"),
+                "physics": self.physics.to_dict(), "dt_s": float(self.acceleration.dt_s),
+                "info": self.info}
+
+    @classmethod
+    def from_parts(cls, arrays: dict[str, np.ndarray], description: dict[str, Any]
+                   ) -> HybridStep1:
+        """The model whose :meth:`arrays` and :meth:`description` these are.
+
+        Raises:
+            ConfigError: another format or version, or a missing or malformed part.
+        """
+        if description.get("format") != FORMAT:
+            raise ConfigError(f"not a {FORMAT} model: format {description.get('format')!r}")
+        if description.get("version") != FORMAT_VERSION:
+            raise ConfigError(f"{FORMAT} version {description.get('version')} is not "
+                              f"{FORMAT_VERSION}")
+        try:
+            config = HybridConfig.model_validate(description["config"])
+            a = {k: np.asarray(v, dtype=np.float64) for k, v in arrays.items()}
+            n_layers = len(config.residual.hidden) + 1
+            layers = tuple((a[f"layer{k}.weight"], a[f"layer{k}.bias"]) for k in range(n_layers))
+            return cls(config, RigidBodyFrictionModel.from_dict(description["physics"]),
+                       CausalAcceleration(a["acceleration_weights"], description["dt_s"]),
+                       ResidualNet(layers, a["in_mean"], a["in_scale"], a["out_scale"]),
+                       Coverage(a["coverage_points"], a["coverage_mean"], a["coverage_scale"],
+                                config.coverage), dict(description.get("info", {})))
+        except (KeyError, ValueError, TypeError) as exc:
+            raise ConfigError(f"incomplete {FORMAT} model: {exc}") from exc
+
     def save(self, path: str | os.PathLike[str]) -> None:
-        """One file: physics parameters and config as JSON, arrays as float64 tensors;
-        :meth:`load` reads it with ``torch.load(weights_only=True)``."""
+        """One file: the description as JSON text, the arrays as float64 tensors; :meth:`load`
+        reads it with ``torch.load(weights_only=True)``."""
         import torch
 
-        arrays = {"acceleration_weights": self.acceleration.weights,
-                  "coverage_points": self.coverage.points, "coverage_mean": self.coverage.mean,
-                  "coverage_scale": self.coverage.scale, "in_mean": self.residual.in_mean,
-                  "in_scale": self.residual.in_scale, "out_scale": self.residual.out_scale}
-        for k, (w, b) in enumerate(self.residual.layers):
-            arrays[f"layer{k}.weight"], arrays[f"layer{k}.bias"] = w, b
         payload = {"format": FORMAT, "version": FORMAT_VERSION,
-                   "config": self.config.model_dump_json(),
-                   "physics": json.dumps(self.physics.to_dict()),
-                   "dt_s": float(self.acceleration.dt_s), "info": json.dumps(self.info),
-                   "arrays": {k: torch.from_numpy(np.ascontiguousarray(v, dtype=np.float64))
-                              for k, v in arrays.items()}}
+                   "description": json.dumps(self.description()),
+                   "arrays": {k: torch.from_numpy(v) for k, v in self.arrays().items()}}
         buffer = io.BytesIO()
         torch.save(payload, buffer)
         with open(path, "wb") as file:
@@ -235,21 +269,12 @@ class HybridStep1:
             raise ConfigError(f"cannot read a hybrid step-1 file {path}: {exc}") from exc
         if not isinstance(payload, dict) or payload.get("format") != FORMAT:
             raise ConfigError(f"{path} is not a {FORMAT} file")
-        if payload.get("version") != FORMAT_VERSION:
-            raise ConfigError(f"{path}: version {payload.get('version')} is not "
-                              f"{FORMAT_VERSION}")
         try:
-            config = HybridConfig.model_validate_json(payload["config"])
-            a = {k: v.numpy() for k, v in payload["arrays"].items()}
-            n_layers = len(config.residual.hidden) + 1
-            layers = tuple((a[f"layer{k}.weight"], a[f"layer{k}.bias"]) for k in range(n_layers))
-            return cls(config, RigidBodyFrictionModel.from_dict(json.loads(payload["physics"])),
-                       CausalAcceleration(a["acceleration_weights"], payload["dt_s"]),
-                       ResidualNet(layers, a["in_mean"], a["in_scale"], a["out_scale"]),
-                       Coverage(a["coverage_points"], a["coverage_mean"], a["coverage_scale"],
-                                config.coverage), json.loads(payload["info"]))
-        except (KeyError, ValueError, TypeError) as exc:
+            description = json.loads(payload["description"])
+            arrays = {k: v.numpy() for k, v in payload["arrays"].items()}
+        except (KeyError, ValueError, TypeError, AttributeError) as exc:
             raise ConfigError(f"{path}: incomplete hybrid step-1 file: {exc}") from exc
+        return cls.from_parts(arrays, description)
 
 
 def _rows(x: np.ndarray) -> np.ndarray:
