@@ -22,7 +22,7 @@ def _head() -> str | None:
     if shutil.which("git") is None:
         return None
     done = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "HEAD"], capture_output=True,
-                          text=True, check=False)
+                          text=True, check=False, timeout=60)
     return done.stdout.strip() if done.returncode == 0 else None
 
 
