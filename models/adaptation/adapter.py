@@ -60,8 +60,11 @@ from wrenchd.models.adaptation.config import AdaptationConfig, RoundResult
 from wrenchd.models.series import N_JOINTS
 
 
-def normalisation_of(free_space) -> dict[str, np.ndarray]:
-    """The step-1 model's normalisation as a ``Corr`` normalisation (plain arrays)."""
+def normalisation_of(free_space) -> dict[str, np.ndarray] | None:
+    """The step-1 model's normalisation as a ``Corr`` normalisation (plain arrays); None for
+    a model without one (a hybrid step 1): the adapter then fits it on its first samples."""
+    if not hasattr(free_space, "in_mean"):
+        return None
     return {"in_mean": free_space.in_mean.double().numpy().copy(),
             "in_std": free_space.in_std.double().numpy().copy(),
             "tau_mean": free_space.out_mean.double().numpy().copy(),

@@ -35,7 +35,7 @@ import os
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, ClassVar
+from typing import Any, Callable, ClassVar
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
@@ -296,9 +296,10 @@ def _dt(series: Sequence[JointStates]) -> float:
     return dt
 
 
-def fit_hybrid(series: Sequence[JointStates], config: HybridConfig | None = None
-               ) -> HybridStep1:
-    """Identify the physics, fit the acceleration filter and train the residual network.
+def fit_hybrid(series: Sequence[JointStates], config: HybridConfig | None = None,
+               on_epoch: Callable[[int, float], None] | None = None) -> HybridStep1:
+    """Identify the physics, fit the acceleration filter and train the residual network
+    (``on_epoch(epoch, loss)`` after each of its epochs, e.g. for a progress bar).
 
     Every gap-free segment of ``series`` (free motion, no contact: the target is the
     measured effort) is used for all three; ``info`` records the fit's ranks and times.
@@ -330,7 +331,7 @@ def fit_hybrid(series: Sequence[JointStates], config: HybridConfig | None = None
     residual_target = tau - physics.predict(x_all[:, :N_JOINTS], x_all[:, N_JOINTS:], a_all,
                                             rigid)
     start = time.perf_counter()
-    net, loss = train_residual(inputs, residual_target, config.residual)
+    net, loss = train_residual(inputs, residual_target, config.residual, on_epoch)
     info = {"n_samples": len(x_all), "dt_s": dt, "physics_rank": physics.rank,
             "physics_fit_seconds": round(physics_s, 2),
             "residual_train_seconds": round(time.perf_counter() - start, 1),
@@ -339,7 +340,8 @@ def fit_hybrid(series: Sequence[JointStates], config: HybridConfig | None = None
                        Coverage.fit([x for x, _ in segs], config.coverage), info)
 
 
-def train_residual(inputs: np.ndarray, target: np.ndarray, config: ResidualNetConfig
+def train_residual(inputs: np.ndarray, target: np.ndarray, config: ResidualNetConfig,
+                   on_epoch: Callable[[int, float], None] | None = None
                    ) -> tuple[ResidualNet, float]:
     """Train the residual network on (N, 18) inputs and (N, 6) residual torques; returns it
     with the last epoch's mean normalised MSE. Seeded; runs on the CPU."""
@@ -362,7 +364,7 @@ def train_residual(inputs: np.ndarray, target: np.ndarray, config: ResidualNetCo
         sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, config.epochs)
         gen = torch.Generator().manual_seed(config.seed)
         loss_sum = 0.0
-        for _ in range(config.epochs):
+        for epoch in range(config.epochs):
             order = torch.randperm(len(x), generator=gen)
             loss_sum, batches = 0.0, 0
             for idx in torch.split(order, config.batch_size):
@@ -373,6 +375,8 @@ def train_residual(inputs: np.ndarray, target: np.ndarray, config: ResidualNetCo
                 loss_sum, batches = loss_sum + float(loss.detach()), batches + 1
             sched.step()
             loss_sum /= batches
+            if on_epoch is not None:
+                on_epoch(epoch, loss_sum)
     linears = [m for m in net if isinstance(m, torch.nn.Linear)]
     layers = tuple((m.weight.detach().double().numpy().T.copy(),
                     m.bias.detach().double().numpy().copy()) for m in linears)

@@ -10,7 +10,7 @@ Sub-commands:
   effects    list the effect vocabulary of model files, with parameters and defaults
   bench      speed of the estimator, the daemon and the replay (``bench inference`` ...)
   train, reproduce, real-data, identify, discrepancy, discrepancy-sweep, discrepancy-real,
-  replay, compare, recovery, announce, excite: see ``wrenchd <command> --help``
+  replay, compare, recovery, announce, excite, fit: see ``wrenchd <command> --help``
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ from wrenchd.models.errors import WrenchdError
 VERBS: list[str] = ["simulate", "inspect", "effects", "serve", "config", "robot", "echo",
                     "bench", "train", "reproduce", "real_data", "identify", "discrepancy",
                     "discrepancy_sweep", "discrepancy_real", "replay", "compare", "recovery",
-                    "announce", "excite"]
+                    "announce", "excite", "fit"]
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -101,7 +101,12 @@ class BatchedEstimator(TwoStepEstimator):
         self._stop = False
         self._failure: BaseException | None = None
         self._progress = threading.Condition()
-        if step1 == "torch" and not self.free_space.training:
+        if not hasattr(self.free_space, "forward_normalised"):
+            # a NumPy step 1 (the hybrid): its batch path is the streaming one, per segment
+            for a, b in self._segments:
+                self.step1[a:b] = self.free_space.predict_sequence(self.features[a:b])
+            self._ready = n
+        elif step1 == "torch" and not self.free_space.training:
             # torch's LSTM releases the GIL: computed on a thread while the replay runs
             self._thread = threading.Thread(target=self._torch_step1, daemon=True,
                                             name="wrenchd-replay-step1")

@@ -118,6 +118,7 @@ def replay_metrics(r: ReplayResult, session: Session) -> dict[str, Any]:
     t0 = float(r.t[0]) if len(r.t) else 0.0
     versions = np.flatnonzero(np.r_[True, np.diff(r.model_version) != 0])
     c = r.status["counters"]
+    after = r.t >= t0 + calib
     m: dict[str, Any] = {
         "policy": r.policy, "source": r.meta.get("source"),
         "samples": int(len(r.t)), "samples_in": r.samples_in,
@@ -126,8 +127,8 @@ def replay_metrics(r: ReplayResult, session: Session) -> dict[str, Any]:
         "counters": c,
         "model_versions": [[float(r.t[i]), int(r.model_version[i])] for i in versions],
         "final_model_version": int(r.model_version[-1]) if len(r.t) else 0,
-        "gate_contact_fraction": float(np.mean(~r.free[r.t >= t0 + calib]))
-        if len(r.t) else None,
+        # None while no sample came after the calibration (a session shorter than it)
+        "gate_contact_fraction": float(np.mean(~r.free[after])) if after.any() else None,
         "events": {k: sum(1 for e in r.events if e.kind == k)
                    for k in sorted({e.kind for e in r.events})},
     }

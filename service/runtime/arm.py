@@ -22,6 +22,7 @@ from wrenchd.models.series import JOINT_NAMES
 from wrenchd.service.runtime.settings import ArmConfig, ServiceSettings
 from wrenchd.service.pipeline import ArmPipeline, Estimate, Event
 from wrenchd.service.runtime.log_process import LogWriterProcess
+from wrenchd.service.pipeline.step1 import Step1
 from wrenchd.service.runtime.plumbing import Console, SampleRing, event_bytes, percentiles
 from wrenchd.service.runtime.worker import ProcessAdaptation, WorkerProcess
 
@@ -45,8 +46,9 @@ class ArmRuntime:
 
     def __init__(self, cfg: ArmConfig, settings: ServiceSettings, session,
                  worker: WorkerProcess | None, wake: threading.Event,
-                 free_space: FreeSpaceModel) -> None:
+                 free_space: FreeSpaceModel, step1: Step1 | None = None) -> None:
         self.cfg, self.settings = cfg, settings
+        self.step1 = step1
         self.name = cfg.name
         self.keys = cfg.keys.resolve(settings.prefix, cfg.name, settings.ros.domain_id)
         backend = (ProcessAdaptation(worker, cfg.name) if worker is not None else None)
@@ -60,7 +62,7 @@ class ArmRuntime:
         self.last: Estimate | None = None
         self.log = McapLog(cfg.name, settings.log, metadata={
             "arm": cfg.name, "settings": settings.model_dump(mode="json"),
-            "keys": self.keys})
+            "keys": self.keys, "step1": step1.to_json() if step1 is not None else None})
         self.log_writer: LogWriterProcess | None = None    # set by the daemon before start()
         self.console: Console | None = None                 # likewise
         self.realtime_priority: int | None = None           # likewise: the sample path's
@@ -132,6 +134,10 @@ class ArmRuntime:
 
     def status(self) -> dict[str, Any]:
         s = self.pipeline.status()
+        if self.step1 is not None:                 # what step 1 is, and where it came from
+            s["model"].update(self.step1.to_json())
+            if self.step1.origin == "simulator" and self.settings.robot != "simulated":
+                s["model"]["warning"] = "a simulator-trained step 1 serves a real arm"
         s["counters"]["dropped"] = self.ring.dropped
         s["counters"]["setup_dropped"] = self.setup_dropped
         s["rate_hz"] = self.rate_hz

@@ -42,13 +42,12 @@ from pathlib import Path
 from wrenchd.adapters.foxglove_live import open_live_view
 from wrenchd.adapters.rmw_zenoh import node_token
 from wrenchd.adapters.zenoh_io import open_session
-from wrenchd.models.estimator.free_space import FreeSpaceModel
 from wrenchd.service.runtime.settings import ServiceSettings
 from wrenchd.models.adaptation import normalisation_of
 from wrenchd.service.pipeline import ArmPipeline, Event
 from wrenchd.service.runtime.log_process import LogWriterProcess
 from wrenchd.service.runtime.scheduling import enter_realtime, normal_scheduling, realtime, realtime_below
-from wrenchd.service.pipeline.step1 import load_free_space
+from wrenchd.service.pipeline.step1 import Step1, load_step1
 from wrenchd.service.runtime.arm import ROS_NODE_ID, ArmRuntime
 from wrenchd.service.runtime.plumbing import SWITCH_INTERVAL_S, Console
 from wrenchd.service.runtime.worker import WorkerProcess
@@ -106,10 +105,17 @@ class Daemon:
                 os.sched_setaffinity(int(tid), s.cpus.daemon)
         adapt = {a.name: a.pipeline.adaptation for a in s.arms
                  if a.pipeline.adaptation.enabled and a.pipeline.policy.name != "frozen"}
-        loaded: dict[str, FreeSpaceModel] = {}           # one copy of each distinct model
+        loaded: dict[str, Step1] = {}                    # one copy of each distinct model
         for spec in {a.model for a in s.arms}:
-            loaded[spec] = load_free_space(spec)
-        self.models = {a.name: loaded[a.model] for a in s.arms}
+            loaded[spec] = load_step1(spec)
+        self.step1 = {a.name: loaded[a.model] for a in s.arms}
+        self.models = {name: step1.model for name, step1 in self.step1.items()}
+        if s.robot != "simulated":
+            for name, step1 in self.step1.items():
+                if step1.origin == "simulator":
+                    print(f"wrenchd: warning: {name} serves {step1.spec!r}, a step-1 model "
+                          f"trained on the simulator, to a real arm; its forces are those of a "
+                          f"simulated PSM (fit one to this arm: wrenchd fit)", flush=True)
         if adapt:
             frac = min(c.max_cpu_fraction for c in adapt.values())
             norms = {name: normalisation_of(self.models[name]) for name in adapt}
@@ -135,7 +141,7 @@ class Daemon:
             for cfg in s.arms:
                 worker = self.worker if cfg.name in adapt else None
                 self.arms.append(ArmRuntime(cfg, s, self.session, worker, self.wake,
-                                            self.models[cfg.name]))
+                                            self.models[cfg.name], self.step1[cfg.name]))
         except Exception:
             normal_scheduling()
             self.close()

@@ -6,7 +6,7 @@ import numpy as np
 import torch
 
 from wrenchd.models.estimator.corr_finetune import CorrFineTuner
-from wrenchd.models.adaptation.adapter import AdaptationConfig, Adapter
+from wrenchd.models.adaptation import AdaptationConfig, Adapter
 
 
 def samples(n: int, seed: int = 0, gain: float = 0.3):

@@ -18,7 +18,7 @@ from wrenchd.adapters.mcap_session_reader import read_session
 from wrenchd.adapters.messages import encode_joint_state
 from wrenchd.models.errors import ConfigError
 from wrenchd.models.estimator.pretrained import load_pretrained
-from wrenchd.models.adaptation.adapter import AdaptationConfig
+from wrenchd.models.adaptation import AdaptationConfig
 from wrenchd.service.pipeline import ArmPipeline, PipelineConfig
 from wrenchd.service.replay.policies import Policy, get_policy, policy_names, register_policy
 from wrenchd.service.replay.loop import STEP1_CHUNKS, BatchedEstimator, replay

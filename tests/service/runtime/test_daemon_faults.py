@@ -94,7 +94,7 @@ def test_a_burst_is_worked_off_in_batches_without_loss(tmp_path):
     with the estimates of a sample-by-sample pipeline (the daemon works a backlog off with
     process_many)."""
     from wrenchd.models.estimator.pretrained import load_pretrained
-    from wrenchd.service.pipeline.arm import ArmPipeline, PipelineConfig
+    from wrenchd.service.pipeline import ArmPipeline, PipelineConfig
 
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     config = write_config(tmp_path / "wrenchd.toml", endpoint, "json", tmp_path / "logs")
@@ -141,7 +141,7 @@ def test_two_arms_of_one_model_get_the_numbers_each_would_get_alone(tmp_path):
     (the first second, before any adaptation round can change the nets)."""
     from wrenchd.adapters.messages import decode_joint_state, decode_wrench
     from wrenchd.models.estimator.pretrained import load_pretrained
-    from wrenchd.service.pipeline.arm import ArmPipeline, PipelineConfig
+    from wrenchd.service.pipeline import ArmPipeline, PipelineConfig
 
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     config = write_config(tmp_path / "wrenchd.toml", endpoint, "json", tmp_path / "logs",

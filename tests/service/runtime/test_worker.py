@@ -5,7 +5,7 @@ import time
 
 import numpy as np
 
-from wrenchd.models.adaptation.adapter import AdaptationConfig
+from wrenchd.models.adaptation import AdaptationConfig
 from wrenchd.service.runtime.worker import ProcessAdaptation, WorkerProcess
 from tests.models.adaptation.test_adapter import samples
 
