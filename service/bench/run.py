@@ -61,7 +61,8 @@ def bench_inference(duration_s: float = 60.0, seed: int = 3, warmup: int = 500) 
 
 
 def run(kind: str, json_path: str | None, duration_s: float, arms: int = 1,
-        rate_hz: float = 1000.0, pin: bool = False, realtime: int | str = "auto") -> int:
+        rate_hz: float = 1000.0, pin: bool = False, realtime: int | str = "auto",
+        recording: str | None = None) -> int:
     """Run the bench ``kind``, print its result as JSON (with its provenance) and write it to
     ``json_path`` too when given."""
     os.environ.setdefault("OMP_NUM_THREADS", "1")
@@ -79,6 +80,10 @@ def run(kind: str, json_path: str | None, duration_s: float, arms: int = 1,
         from wrenchd.service.bench.replay import run_replay_bench
 
         result = run_replay_bench(duration_s)
+    elif kind == "fit":
+        from wrenchd.service.bench.fit import bench_fit
+
+        result = bench_fit(recording, duration_s)
     else:
         raise SystemExit(f"wrenchd bench: unknown benchmark {kind!r}")
     stamp(result, run=meter)

@@ -8,7 +8,7 @@ import argparse
 #: replay: a 10 min session; a shorter one is mostly the calibration minute, whose eager
 #: rounds the worker cannot keep up with, so its speed says little about the rest.
 DEFAULT_DURATION_S = {"service": 20.0, "floor": 20.0, "arm": 20.0, "replay": 600.0,
-                      "soak": 1800.0}
+                      "soak": 1800.0, "fit": 30.0}
 
 
 def realtime_setting(text: str) -> int | str:
@@ -30,22 +30,26 @@ def bench(args: argparse.Namespace) -> int:
     if args.duration is None:
         args.duration = DEFAULT_DURATION_S.get(args.kind, 60.0)
     return run(args.kind, args.json, args.duration, args.arms, args.rate, args.pin,
-               args.realtime)
+               args.realtime, args.recording)
 
 
 def register(sub) -> None:
     p = sub.add_parser("bench", help="measure speed (medians and percentiles, one run)")
-    p.add_argument("kind", choices=["inference", "arm", "service", "soak", "floor", "replay"],
+    p.add_argument("kind", choices=["inference", "arm", "service", "soak", "floor", "replay",
+                                    "fit"],
                    help="inference: estimator step; arm: per-sample cost of the daemon's "
                         "work for one arm without zenoh; service: daemon end to end over loopback "
                         "zenoh; soak: the same for --duration (default 1800 s) with its "
                         "memory; floor: the service bench against the daemon's plumbing "
                         "without estimation (this machine's latency floor); replay: "
-                        "replay throughput")
+                        "replay throughput; fit: wrenchd fit from reading to a bundle")
     p.add_argument("--json", help="also write the result to this file")
+    p.add_argument("--recording", help="fit: the recording to fit (default: --duration s of "
+                                       "the simulator's free-space scenario)")
     p.add_argument("--duration", type=float, default=None,
                    help="inference: session length [s] (60); replay: session length "
-                        "[s] (600); service: measured [s] (20)")
+                        "[s] (600); service: measured [s] (20); fit: simulated "
+                        "recording [s] (30)")
     p.add_argument("--arms", type=int, default=1, help="service: arms at once (PSM1..)")
     p.add_argument("--rate", type=float, default=1000.0, help="service: rate per arm [Hz]")
     p.add_argument("--pin", action="store_true",
