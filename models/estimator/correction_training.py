@@ -44,7 +44,8 @@ def fit_xfer(base: FreeSpaceModel, series: Sequence[JointStates],
 
 
 def predict_segments(model: GroupedTorqueModel, features: Sequence[np.ndarray]) -> list[np.ndarray]:
-    """Eval-mode torques of several gap-free segments in one batched pass.
+    """Eval-mode torques of several gap-free segments in one batched pass (a step 1 that is
+    no torch module, the hybrid, runs each segment through its own ``predict_sequence``).
 
     Each segment starts from the zero state, exactly as ``model.predict_sequence`` of each
     alone: the shorter ones are padded at their end (an LSTM is causal, padding after a
@@ -57,6 +58,8 @@ def predict_segments(model: GroupedTorqueModel, features: Sequence[np.ndarray]) 
     """
     if not features:
         return []
+    if not isinstance(model, torch.nn.Module):      # a NumPy step 1 (the hybrid): per segment
+        return [np.asarray(model.predict_sequence(x), dtype=np.float64) for x in features]
     lengths = [len(x) for x in features]
     longest = max(lengths)
     padded = np.stack([np.concatenate([x, np.repeat(x[-1:], longest - len(x), axis=0)])
@@ -185,7 +188,8 @@ def fit_corr(base: FreeSpaceModel, series: Sequence[JointStates],
     train, val = split_series(series, config.val_fraction, config.max_gap_s)
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(config.seed)
-        corr = Corr(corr_config).to(base.in_mean.dtype)
+        # float32 unless the step 1 is a float64 torch model; the hybrid is NumPy (float32 net)
+        corr = Corr(corr_config).to(getattr(base, "in_mean", torch.zeros(0)).dtype)
         w_tr, s_tr = corr_inputs(base, [x for x, _ in train], corr.window)
         w_va, s_va = corr_inputs(base, [x for x, _ in val], corr.window)
         y_tr = np.concatenate([y for _, y in train])
