@@ -302,14 +302,20 @@ def finite_or_none(x: float) -> float | None:
 
 # -- set-up changes (wrenchd's own message, JSON only) ------------------------------------
 #: fields a set-up change may carry besides its stamp
-_SETUP_FIELDS = {"pressure_mmhg", "note"}
+_SETUP_FIELDS = {"kind", "pressure_mmhg", "instrument", "note"}
 
 
 def encode_setup_change(stamp_ns: int | None = None, pressure_mmhg: float | None = None,
-                        note: str | None = None) -> bytes:
+                        note: str | None = None, kind: str | None = None,
+                        instrument: str | None = None) -> bytes:
     """A ``setup`` message: the set-up changed at ``stamp_ns`` (None: "now", the arm's latest
-    sample), with the insufflation pressure [mmHg] and a note if known."""
+    sample), with its ``kind`` (None: left out, read as ``"pressure"``), the insufflation
+    pressure [mmHg], the new instrument's name and a note if known."""
     body: dict[str, Any] = {}
+    if kind is not None:
+        body["kind"] = str(kind)
+    if instrument is not None:
+        body["instrument"] = str(instrument)
     if stamp_ns is not None:
         sec, nanosec = _split_ns(int(stamp_ns))
         body["stamp"] = {"sec": sec, "nanosec": nanosec}
@@ -322,13 +328,18 @@ def encode_setup_change(stamp_ns: int | None = None, pressure_mmhg: float | None
 
 def decode_setup_change(payload: bytes) -> tuple[int | None, dict[str, Any]]:
     """A ``setup`` message -> (stamp [ns] or None, detail): a JSON object with an optional
-    ``stamp`` (``sec``, ``nanosec``), ``pressure_mmhg`` (a number in [0, 100]) and ``note``
-    (text, at most 200 characters); anything else is refused with :class:`DataError`."""
+    ``stamp`` (``sec``, ``nanosec``), ``kind`` (one of
+    :data:`~wrenchd.models.adaptation.adapter.SETUP_KINDS`; default ``"pressure"``, or
+    ``"instrument"`` when an ``instrument`` is named), ``pressure_mmhg`` (a number in
+    [0, 100]), ``instrument`` (the new instrument's name, text of at most 100 characters, only
+    with kind ``"instrument"``) and ``note`` (text, at most 200 characters); anything else is
+    refused with :class:`DataError`. The detail carries the kind unless the message
+    left it to the default."""
     message = _json_object(payload, "set-up change")
     unknown = set(message) - _SETUP_FIELDS - {"stamp"}
     if unknown:
         raise DataError(f"set-up change: unknown field(s) {sorted(unknown)[:5]}; expected "
-                        f"'stamp', 'pressure_mmhg', 'note'")
+                        f"'stamp', 'kind', 'pressure_mmhg', 'instrument', 'note'")
     stamp_ns = None
     if "stamp" in message:
         try:
@@ -337,7 +348,20 @@ def decode_setup_change(payload: bytes) -> tuple[int | None, dict[str, Any]]:
             raise DataError("set-up change: " + str(exc).replace("header.stamp", "stamp")
                             .replace("missing object 'stamp'",
                                      "'stamp' must be an object {sec, nanosec}")) from None
-    detail: dict[str, Any] = {}
+    from wrenchd.models.adaptation.adapter import SETUP_KINDS
+
+    kind = message.get("kind", "instrument" if "instrument" in message else "pressure")
+    if kind not in SETUP_KINDS:
+        raise DataError(f"set-up change: kind must be one of {', '.join(SETUP_KINDS)}, got "
+                        f"{str(kind)[:24]}")
+    detail: dict[str, Any] = {"kind": kind} if kind != "pressure" or "kind" in message else {}
+    if "instrument" in message:
+        name = message["instrument"]
+        if not isinstance(name, str) or len(name) > 100:
+            raise DataError("set-up change: instrument must be text of at most 100 characters")
+        if kind != "instrument":
+            raise DataError(f"set-up change: an instrument is named in a change of kind {kind}")
+        detail["instrument"] = name
     if "pressure_mmhg" in message:
         p = message["pressure_mmhg"]
         if isinstance(p, bool) or not isinstance(p, (int, float)) or not 0.0 <= p <= 100.0:

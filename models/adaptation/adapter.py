@@ -23,7 +23,15 @@ process, :mod:`wrenchd.service.runtime.worker`) and by replay (inline, in simula
   (:class:`~wrenchd.models.body_wall_tracker.BodyWallTracker`), and before every round each buffered
   sample from an earlier segment gets ``(k_now - k_then) g(q)`` added to its measured yaw and
   pitch torques (``g``: the wall's torque per N/m). The shift follows the estimates as bins
-  close; each row remembers what it was given.
+  close; each row remembers what it was given. That is a change of ``kind`` ``"pressure"``
+  (:data:`SETUP_KINDS`), the default.
+* A change of ``kind`` ``"instrument"`` (a tool swapped: a new payload on the arm) cannot be
+  carried over: the old instrument's samples describe a mass the arm no longer carries, and no
+  tracked quantity maps them onto the new one. The replay buffer, the held-out set and the
+  body wall tracker (its stiffnesses were fitted on the old instrument's residuals) restart on
+  the new instrument's samples; the serving ``Corr`` is kept as the starting point of the
+  eager rounds (what it learnt of step 1's misfit still holds) and, until one is accepted on
+  the new held-out set, as the serving net.
 
 Output-layer refit (``refit_shrink`` > 0). A round's few dozen Adam steps on mixed batches
 move the net only part of the way towards a new regime (an insufflation pressure step shifts
@@ -58,6 +66,10 @@ from wrenchd.models.estimator.correction import Corr, CorrConfig, CorrKernel, ze
 from wrenchd.models.adaptation.buffer import RowRing
 from wrenchd.models.adaptation.config import AdaptationConfig, RoundResult
 from wrenchd.models.series import N_JOINTS
+
+
+#: what an announced set-up change can be (:meth:`Adapter.on_setup_change`)
+SETUP_KINDS = ("pressure", "instrument")
 
 
 def normalisation_of(free_space) -> dict[str, np.ndarray] | None:
@@ -169,15 +181,36 @@ class Adapter:
         self.body_wall = BodyWallTracker(self.config.body_wall)
         self._carried_segment = 0
 
-    def on_setup_change(self, t: float, now: float | None = None) -> None:
-        """The set-up changed at sample time ``t`` [s] (announced, e.g. the insufflator's
-        pressure): adapt eagerly from ``now`` (the rounds' clock; default ``t``) and carry the
-        buffer over to the new set-up (module docstring). The held-out set is kept: it is
-        carried over too."""
-        self.body_wall.announce(t)
+    def on_setup_change(self, t: float, now: float | None = None,
+                        kind: str = "pressure") -> None:
+        """The set-up changed at sample time ``t`` [s] (announced): adapt eagerly from ``now``
+        (the rounds' clock; default ``t``). A ``"pressure"`` change (the insufflator's) carries
+        the buffer over to the new set-up, the held-out set too; an ``"instrument"`` change
+        forgets every buffered and held-out sample and restarts the body wall tracker (module
+        docstring).
+
+        Raises:
+            ValueError: ``kind`` is not one of :data:`SETUP_KINDS`.
+        """
+        if kind not in SETUP_KINDS:
+            raise ValueError(f"unknown set-up change kind {kind!r}; one of "
+                             f"{', '.join(SETUP_KINDS)}")
+        if kind == "instrument":
+            self._forget_instrument()
+        else:
+            self.body_wall.announce(t)
         now = t if now is None else now
         self._eager_until = now + self.config.eager_s
         self._next_round = now
+
+    def _forget_instrument(self) -> None:
+        """Drop the training data of the instrument that left: the rings, the reservoir's
+        sampling count and the body wall tracker; the serving ``Corr`` stays."""
+        for ring in (self.recent, self.reservoir, self._holdout):
+            ring.clear()
+        self._evicted = 0
+        self.body_wall = BodyWallTracker(self.config.body_wall)
+        self._carried_segment = 0
 
     def _carry_over(self, t: float) -> int:
         """Bring every buffered row's measured yaw and pitch torques to the latest segment's

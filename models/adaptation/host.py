@@ -10,7 +10,10 @@ Calls, by ``kind``:
   (:meth:`Adapter.add`); ``"rows"``: payload ``(rows (n, W * 12 + 12) float32, t (n,))``
   (:meth:`Adapter.add_rows`).
 * ``"drift"``: adapt eagerly from ``now``, forget the old regime's samples.
-* ``"setup"``: payload the announced change's sample time [s]; eager from ``now``.
+* ``"setup"``: payload the announced change's sample time [s]; a ``"pressure"`` change, eager
+  from ``now`` (:meth:`Adapter.on_setup_change`); ``"instrument"``: the same for an instrument
+  change (the adapter's training data restart). :data:`SETUP_CALLS` names the call of each
+  set-up change kind.
 * ``"reset"``: back to a fresh adapter (the periodic-reset policy).
 * ``"tick"``: a round at ``now`` if one is due; its :class:`RoundResult` or None.
 * ``"fail"``: fault injection for tests: the arm's next round raises.
@@ -22,10 +25,13 @@ from typing import Any
 
 import numpy as np
 
-from wrenchd.models.adaptation.adapter import Adapter
+from wrenchd.models.adaptation.adapter import SETUP_KINDS, Adapter
 from wrenchd.models.adaptation.config import AdaptationConfig, RoundResult
 
-CALLS = ("samples", "rows", "drift", "setup", "reset", "tick", "fail")
+CALLS = ("samples", "rows", "drift", "setup", "instrument", "reset", "tick", "fail")
+#: the call of each announced set-up change kind (``SETUP_KINDS``)
+SETUP_CALLS = {"pressure": "setup", "instrument": "instrument"}
+assert set(SETUP_CALLS) == set(SETUP_KINDS)
 
 
 class AdapterHost:
@@ -69,7 +75,9 @@ class AdapterHost:
         elif kind == "drift":
             adapter.on_drift(now)
         elif kind == "setup":
-            adapter.on_setup_change(float(payload), now)
+            adapter.on_setup_change(float(payload), now, "pressure")
+        elif kind == "instrument":
+            adapter.on_setup_change(float(payload), now, "instrument")
         elif kind == "reset":
             self.adapters[arm] = Adapter(adapter.config, normalisation=adapter.normalisation)
         elif kind == "fail":

@@ -15,6 +15,11 @@ a lost event), the daemon's status counters say whether the notice was taken.
 Example::
 
     wrenchd announce --arm PSM1 --pressure 20 --note "insufflation raised"
+    wrenchd announce --arm PSM1 --instrument "large needle driver"
+
+A ``pressure`` change (the default kind) carries the adapter's buffer over to the new set-up;
+an ``instrument`` change (``--instrument NAME`` or ``--kind instrument``) restarts its training
+data and the calibration on the new instrument.
 """
 
 from __future__ import annotations
@@ -36,8 +41,14 @@ def announce(args: argparse.Namespace) -> int:
         raise ConfigError(f"--pressure must be in [0, 100] mmHg, got {args.pressure:g}")
     if args.at is not None and not (math.isfinite(args.at) and args.at >= 0):
         raise ConfigError(f"--at must be a sample time >= 0 [s], got {args.at:g}")
+    kind = args.kind or ("instrument" if args.instrument is not None else None)
+    if args.instrument is not None and kind != "instrument":
+        raise ConfigError(f"--instrument names a new instrument: it needs --kind instrument, "
+                          f"got --kind {kind}")
+    if args.instrument is not None and not 0 < len(args.instrument) <= 100:
+        raise ConfigError("--instrument must be a name of 1 to 100 characters")
     payload = encode_setup_change(None if args.at is None else stamp_ns_of(args.at),
-                                  args.pressure, args.note)
+                                  args.pressure, args.note, kind, args.instrument)
     base = f"{args.prefix}/{args.arm}"
     key = f"{base}/setup"
     answers: list[dict] = []
@@ -113,6 +124,10 @@ def register(sub) -> None:
     p.add_argument("--prefix", default="dvrk")
     p.add_argument("--pressure", type=float, default=None,
                    help="insufflation pressure now [mmHg] (logged with the notice)")
+    p.add_argument("--kind", choices=("pressure", "instrument"), default=None,
+                   help="what changed (default: instrument with --instrument, else pressure)")
+    p.add_argument("--instrument", default=None, metavar="NAME",
+                   help="an instrument was swapped: the new one's name (kind instrument)")
     p.add_argument("--note", default=None, help="free text logged with the notice")
     p.add_argument("--at", type=float, default=None, metavar="SECONDS",
                    help="sample time of the change [s] (default: now, the arm's latest sample)")

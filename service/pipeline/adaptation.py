@@ -11,7 +11,7 @@ from typing import Protocol
 import numpy as np
 
 from wrenchd.models.adaptation import Adapter, AdaptationConfig, RoundResult
-from wrenchd.models.adaptation.host import AdapterHost
+from wrenchd.models.adaptation.host import SETUP_CALLS, AdapterHost
 from wrenchd.models.estimator.correction import Corr, CorrConfig, zero_corr
 
 class AdaptationBackend(Protocol):
@@ -20,7 +20,7 @@ class AdaptationBackend(Protocol):
     def offer(self, windows: np.ndarray, step1: np.ndarray, measured: np.ndarray,
               t: np.ndarray | None = None) -> None: ...
     def drift(self, t: float) -> None: ...
-    def setup_change(self, t: float) -> None: ...
+    def setup_change(self, t: float, kind: str = "pressure") -> None: ...
     def tick(self, t: float) -> list[RoundResult]: ...
     def reset(self, t: float) -> None: ...
     def close(self) -> None: ...
@@ -45,8 +45,8 @@ class InlineAdaptation:
     def drift(self, t: float) -> None:
         self.host.call(self.ARM, "drift", t)
 
-    def setup_change(self, t: float) -> None:
-        self.host.call(self.ARM, "setup", t, t)
+    def setup_change(self, t: float, kind: str = "pressure") -> None:
+        self.host.call(self.ARM, SETUP_CALLS[kind], t, t)
 
     def tick(self, t: float) -> list[RoundResult]:
         result = self.host.call(self.ARM, "tick", t)

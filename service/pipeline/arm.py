@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 
 from wrenchd.models.adaptation import normalisation_of
+from wrenchd.models.adaptation.adapter import SETUP_KINDS
 from wrenchd.models.drift_detector import ResidualDriftDetector
 from wrenchd.models.errors import DataError
 from wrenchd.models.estimator.estimator import TwoStepEstimator
@@ -354,15 +355,30 @@ class ArmPipeline:
 
     def setup_change(self, t: float | None = None, detail: dict[str, Any] | None = None
                      ) -> list[Event]:
-        """An announced set-up change (the insufflator's pressure set differently, a port
-        moved) at sample time ``t`` [s] (None: the last estimated sample's): adaptation gets
-        eager as after a drift, and the adapter carries its buffer over to the new set-up
-        (:meth:`wrenchd.models.adaptation.adapter.Adapter.on_setup_change`). ``detail`` (JSON values) goes
-        into the ``setup_change`` event. A time that is not finite, or more than
-        ``validation.setup_ahead_s`` after the latest sample, is refused with an error
-        event."""
+        """An announced set-up change at sample time ``t`` [s] (None: the last estimated
+        sample's): adaptation gets eager as after a drift. ``detail["kind"]`` (default
+        ``"pressure"``, :data:`~wrenchd.models.adaptation.adapter.SETUP_KINDS`) says what
+        changed:
+
+        * ``"pressure"`` (the insufflator's pressure set differently, a port moved): the adapter
+          carries its buffer over to the new set-up
+          (:meth:`wrenchd.models.adaptation.adapter.Adapter.on_setup_change`).
+        * ``"instrument"`` (a tool swapped: a new payload): the adapter forgets the old
+          instrument's samples, the delay line's are dropped, and the calibration runs again
+          from the next sample for ``calibration_s`` (a swap happens with the instrument out
+          of tissue; the gate then re-learns its bounds on the new instrument's residual, which
+          it would otherwise take for a contact that never ends).
+
+        ``detail`` (JSON values) goes into the ``setup_change`` event. An unknown kind, a time
+        that is not finite, or more than ``validation.setup_ahead_s`` after the latest sample,
+        is refused with an error event."""
         detail = dict(detail or {})
         last = self.line.last_t
+        kind = detail.get("kind", "pressure")
+        if kind not in SETUP_KINDS:
+            return [self.refuse_setup(last if last is not None else 0.0,
+                                      f"unknown set-up change kind {str(kind)[:24]!r}; one of "
+                                      f"{', '.join(SETUP_KINDS)}")]
         if t is None:
             if last is None:
                 return [self.refuse_setup(0.0, "a set-up change before the first sample "
@@ -379,10 +395,15 @@ class ArmPipeline:
         self.counters.setup_changes += 1
         self._adapt_until = t + self.config.adaptation.eager_s
         if self.backend is not None:
-            self.backend.setup_change(t)
+            self.backend.setup_change(t, kind)
+        if kind == "instrument":
+            self.line.clear()
+            if self.config.calibration_s > 0 and not self.calibrating:
+                self._calibration_end = None       # the next sample starts a calibration
         self._last_setup = {"t": t, **detail}
         return [Event(t, "setup_change", {"arm": self.arm, **detail,
                                           "carry_over": self.backend is not None
+                                          and kind == "pressure"
                                           and self.config.adaptation.body_wall.enabled})]
 
     def apply(self, result: RoundResult) -> list[Event]:

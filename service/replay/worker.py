@@ -29,6 +29,7 @@ import numpy as np
 
 from wrenchd.models.series import N_JOINTS
 from wrenchd.models.adaptation import AdaptationConfig, RoundResult
+from wrenchd.models.adaptation.host import SETUP_CALLS
 
 CHUNK_S = 0.25          # the pipeline sends its calls at least every this much sample time [s]
 ARM = "replay"          # the one arm of a replay worker
@@ -151,8 +152,8 @@ class WorkerAdaptation:
     def drift(self, t: float) -> None:
         self._call("drift", t)
 
-    def setup_change(self, t: float) -> None:
-        self._call("setup", t)
+    def setup_change(self, t: float, kind: str = "pressure") -> None:
+        self._call(SETUP_CALLS[kind], t)
 
     def reset(self, t: float) -> None:
         self._call("reset", t)

@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from wrenchd.models.adaptation import AdaptationConfig, RoundResult
+from wrenchd.models.adaptation.host import SETUP_CALLS
 
 _BATCH_S = 0.2          # pipelines send their samples at least this often [s]
 _POLL_S = 0.02          # and look for round results at most this often [s]: polling the
@@ -220,9 +221,9 @@ class ProcessAdaptation:
         self._send_batch()
         self.worker.send("drift", self.arm)
 
-    def setup_change(self, t: float) -> None:
+    def setup_change(self, t: float, kind: str = "pressure") -> None:
         self._send_batch()                  # the samples before it first
-        self.worker.send("setup", self.arm, float(t))
+        self.worker.send(SETUP_CALLS[kind], self.arm, float(t))
 
     def reset(self, t: float) -> None:
         for rows in self._batch:
