@@ -23,8 +23,10 @@ separate process publishing on each arm's ``measured_js`` (``wrenchd robot``), r
 ground truth beside the logs.
 
 SIGINT/SIGTERM stop cleanly: subscribers are undeclared first (no callback runs after), the
-estimation thread finishes what is queued, the worker stops, the logs are finished, the
-session is closed.
+estimation thread finishes what is queued, the worker is asked to stop, the logs are
+finished, the worker and the robots are waited for, the session is closed. Every child ends
+by itself; one that has not within its bound is killed, and a line on stderr says so
+(``... killed it``).
 """
 
 from __future__ import annotations
@@ -55,6 +57,13 @@ from wrenchd.service.runtime.worker import WorkerProcess
 
 LINK_CHECK_S = 0.5      # how often the session's routers and peers are counted [s]
 BATCH = 32              # samples of one arm estimated before the next arm's turn
+ROBOT_STOP_S = 10.0     # how long a simulated robot may take to end after SIGINT [s]
+
+
+def _say_killed(what: str, pid: int | None, when: str) -> None:
+    """The line on stderr that says a child process did not end when asked and was killed."""
+    print(f"wrenchd: warning: {what} (pid {pid}) had not ended {when}; killed it",
+          file=sys.stderr, flush=True)
 
 
 def _robot_command(settings: ServiceSettings, arm: str) -> list[str]:
@@ -115,7 +124,8 @@ class Daemon:
                 if step1.origin == "simulator":
                     print(f"wrenchd: warning: {name} serves {step1.spec!r}, a step-1 model "
                           f"trained on the simulator, to a real arm; its forces are those of a "
-                          f"simulated PSM (fit one to this arm: wrenchd fit)", flush=True)
+                          f"simulated PSM (fit one to this arm: wrenchd fit)", file=sys.stderr,
+                          flush=True)
         if adapt:
             frac = min(c.max_cpu_fraction for c in adapt.values())
             norms = {name: normalisation_of(self.models[name]) for name in adapt}
@@ -316,6 +326,8 @@ class Daemon:
         self.wake.set()
         if self.thread is not None and self.thread.is_alive():
             self.thread.join(timeout=10.0)
+        if self.worker is not None:                # asked now, waited for last: its exit
+            self.worker.stop()                     # overlaps the logs' closing
         for arm in self.arms:
             arm.close()
         if self.live is not None:                  # after the estimation thread stopped
@@ -325,18 +337,25 @@ class Daemon:
             self.console.close()
             self.console = None
         if self.log_writer is not None:            # writes what is queued, finishes the files
-            self.log_writer.close()
+            pid = self.log_writer.process.pid if self.log_writer.process else None
+            if self.log_writer.close():
+                _say_killed("the log writer process", pid, "after finishing its files")
             self.log_writer = None
         else:
             for arm in self.arms:
                 arm.log.close()
         if self.worker is not None:
-            self.worker.close()
+            if self.worker.close():
+                _say_killed("the adaptation worker", self.worker.process.pid,
+                            "after its stop message")
         for robot in self.robots:
             try:
-                robot.wait(timeout=10.0)
+                robot.wait(timeout=ROBOT_STOP_S)
             except subprocess.TimeoutExpired:
                 robot.kill()
+                robot.wait()
+                _say_killed("the simulated robot", robot.pid,
+                            f"{ROBOT_STOP_S:g} s after SIGINT")
         if self.ros_node is not None:
             try:
                 self.ros_node.undeclare()

@@ -40,6 +40,8 @@ from wrenchd.service.runtime.scheduling import normal_class, normal_scheduling
 
 #: how long close() waits for the writer to finish its files [s]
 CLOSE_TIMEOUT_S = 30.0
+#: how long close() then waits for the writer process to end [s]
+EXIT_TIMEOUT_S = 5.0
 
 
 def _state(log: McapLog) -> tuple:
@@ -221,8 +223,10 @@ class LogWriterProcess:
                 self._start_process()
         self._send_queued()
 
-    def close(self) -> None:
-        """Hand over what is queued, let the writer finish every file, stop."""
+    def close(self) -> bool:
+        """Hand over what is queued, let the writer finish every file, stop. Returns True
+        when the writer had to be killed (it had not ended within ``EXIT_TIMEOUT_S`` of
+        saying its files were finished, or of ``CLOSE_TIMEOUT_S`` without a word)."""
         self._closing.set()
         self.thread.join(timeout=CLOSE_TIMEOUT_S)
         if self._inbox is not None:
@@ -233,8 +237,11 @@ class LogWriterProcess:
             deadline = time.monotonic() + CLOSE_TIMEOUT_S
             while time.monotonic() < deadline and not self._read_states(0.1):
                 pass
+        killed = False
         if self.process is not None:
-            self.process.join(timeout=5.0)
+            self.process.join(timeout=EXIT_TIMEOUT_S)
             if self.process.is_alive():
+                killed = True
                 self.process.kill()
                 self.process.join(timeout=5.0)
+        return killed

@@ -13,6 +13,17 @@ estimator's safe checkpoint format) so any version can be loaded again (``corr_c
 in the arm's settings). The worker exits by itself when the daemon dies (``kill -9``
 included): it watches its parent process.
 
+Stopping: the daemon sends ``stop`` (:meth:`WorkerProcess.stop`), which the loop sees at its
+next look at the inbox (it waits there, the duty cycle's pauses included, so a message wakes
+it at once; a round takes milliseconds); the stop goes before any message queued with it. A result the worker queued
+and the daemon no longer reads must not hold it up: a process exits only once its queues'
+feeder threads have written everything, and a round's result (its weights) can fill the
+pipe. So the worker drops what it has not delivered, flushes its output and ends with
+``os._exit(0)``: its state is in memory or already in its checkpoints, and the interpreter's
+teardown (with torch loaded, about half a second) has nothing left to save. The daemon reads
+the results while it waits all the same (:meth:`WorkerProcess.close`), and kills a worker
+that has not ended within its bound, saying so.
+
 Clocks: the worker schedules rounds on its own clock (seconds since it started), which is what
 a round result's ``t`` holds; the pipeline stamps the ``round`` and ``model`` events with the
 arm's sample time at which it applies the result (:meth:`ArmPipeline.apply`), so every event
@@ -25,6 +36,7 @@ import multiprocessing as mp
 import os
 import queue
 import signal
+import sys
 import time
 import traceback
 from pathlib import Path
@@ -40,10 +52,29 @@ _POLL_S = 0.02          # and look for round results at most this often [s]: pol
                         # queue costs a select() call, too much to pay on every sample
 
 
+#: how long :meth:`WorkerProcess.close` waits for the worker to end before killing it [s]
+CLOSE_TIMEOUT_S = 2.0
+
+
+def _main(inbox: mp.Queue, outbox: mp.Queue, configs: dict[str, dict[str, Any]],
+          normalisations: dict[str, dict[str, np.ndarray]], models_dir: str | None,
+          max_cpu_fraction: float, cpus: list[int] | None = None) -> None:
+    """The worker process: :func:`_run` until stopped (or orphaned), then an immediate exit
+    that waits neither for undelivered results nor for the interpreter's teardown."""
+    _run(inbox, outbox, configs, normalisations, models_dir, max_cpu_fraction, cpus)
+    outbox.cancel_join_thread()           # undelivered results: nobody waits for them
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass
+    os._exit(0)
+
+
 def _run(inbox: mp.Queue, outbox: mp.Queue, configs: dict[str, dict[str, Any]],
          normalisations: dict[str, dict[str, np.ndarray]], models_dir: str | None,
          max_cpu_fraction: float, cpus: list[int] | None = None) -> None:
-    """Worker process main loop."""
+    """Worker process main loop; returns when stopped or when the daemon is gone."""
     if cpus is not None:
         os.sched_setaffinity(0, cpus)
     from wrenchd.models.estimator.checkpoint import save_checkpoint
@@ -68,6 +99,7 @@ def _run(inbox: mp.Queue, outbox: mp.Queue, configs: dict[str, dict[str, Any]],
     busy_until = 0.0
     while True:
         try:
+            # the duty cycle's pause is spent waiting here: a message ends it at once
             timeout = max(0.02, busy_until - time.monotonic())
             message = inbox.get(timeout=timeout)
             messages = [message]
@@ -80,10 +112,10 @@ def _run(inbox: mp.Queue, outbox: mp.Queue, configs: dict[str, dict[str, Any]],
             messages = []
         if os.getppid() != parent:          # the daemon died (kill -9): do not linger
             return
+        if any(kind == "stop" for kind, _, _ in messages):
+            return                          # before the samples queued with it
         now = time.monotonic() - t0
         for kind, arm, payload in messages:
-            if kind == "stop":
-                return
             host.call(arm, kind, now, payload)
         if time.monotonic() < busy_until:
             continue
@@ -123,11 +155,12 @@ class WorkerProcess:
         self.inbox: mp.Queue = ctx.Queue()
         self.outbox: mp.Queue = ctx.Queue()
         self.process = ctx.Process(
-            target=_run, name="wrenchd-adaptation", daemon=True,
+            target=_main, name="wrenchd-adaptation", daemon=True,
             args=(self.inbox, self.outbox, {a: c.model_dump() for a, c in configs.items()},
                   normalisations or {}, models_dir, max_cpu_fraction, cpus))
         self.process.start()
         self._results: dict[str, list[tuple[str, Any]]] = {arm: [] for arm in configs}
+        self._stop_sent = False
 
     def send(self, kind: str, arm: str, payload: Any = None) -> None:
         if self.process.is_alive():
@@ -135,12 +168,7 @@ class WorkerProcess:
 
     def poll(self, arm: str) -> list[tuple[str, Any]]:
         """Results for ``arm`` received so far (other arms' are kept for them)."""
-        while True:
-            try:
-                kind, who, payload = self.outbox.get_nowait()
-            except (queue.Empty, EOFError, OSError):
-                break
-            self._results.setdefault(who, []).append((kind, payload))
+        self._drain()
         out, self._results[arm] = self._results.get(arm, []), []
         return out
 
@@ -148,18 +176,44 @@ class WorkerProcess:
     def alive(self) -> bool:
         return self.process.is_alive()
 
-    def close(self) -> None:
+    def stop(self) -> None:
+        """Ask the worker to end (it does within a round's time); :meth:`close`
+        waits for it. The daemon asks early and waits last, so the worker's exit overlaps
+        the rest of its close sequence."""
+        if self._stop_sent:
+            return
+        self._stop_sent = True
         try:
             self.inbox.put(("stop", "", None))
         except (OSError, ValueError):
             pass
-        self.process.join(timeout=5.0)
-        if self.process.is_alive():
+
+    def close(self, timeout: float = CLOSE_TIMEOUT_S) -> bool:
+        """Stop the worker and wait up to ``timeout`` seconds for it to end, reading what it
+        still sends meanwhile (a result left in a full pipe would keep it from exiting); one
+        still running then is killed. Returns True when it had to be killed."""
+        self.stop()
+        deadline = time.monotonic() + timeout
+        while self.process.is_alive() and time.monotonic() < deadline:
+            self.process.join(timeout=min(_POLL_S, max(0.0, deadline - time.monotonic())))
+            self._drain()
+        killed = self.process.is_alive()
+        if killed:
             self.process.kill()
             self.process.join(timeout=2.0)
         for q in (self.inbox, self.outbox):
             q.cancel_join_thread()
             q.close()
+        return killed
+
+    def _drain(self) -> None:
+        """Read the results waiting in the outbox (kept for :meth:`poll`)."""
+        while True:
+            try:
+                kind, who, payload = self.outbox.get_nowait()
+            except (queue.Empty, EOFError, OSError, ValueError):
+                return
+            self._results.setdefault(who, []).append((kind, payload))
 
 
 class _Rows:
