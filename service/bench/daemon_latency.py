@@ -122,6 +122,32 @@ def _drain(stream, path: Path) -> threading.Thread:
     return thread
 
 
+#: How long the daemon may take to load its models and say it listens [s].
+START_TIMEOUT_S = 120.0
+
+
+def _await_listening(daemon: subprocess.Popen, n_arms: int, timeout_s: float) -> None:
+    """Read the daemon's stdout until each arm's ``listening`` line, at most ``timeout_s``;
+    a daemon that exits or stays silent is stopped and RuntimeError quotes its stderr."""
+    lines: list[str] = []
+
+    def read() -> None:
+        while sum("listening" in line for line in lines) < n_arms:
+            line = daemon.stdout.readline()
+            if not line:
+                return
+            lines.append(line)
+
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
+    reader.join(timeout_s)
+    if sum("listening" in line for line in lines) < n_arms:
+        daemon.kill()
+        err = daemon.communicate(timeout=10.0)[1] if daemon.stderr else ""
+        raise RuntimeError(f"the daemon did not start within {timeout_s:g} s: "
+                           f"{''.join(lines)}{err}")
+
+
 def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 20.0,
                   warmup_s: float = 3.0, adaptation: bool = True,
                   log: bool = True, floor: bool = False, pin: bool = False,
@@ -179,10 +205,7 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
     status: dict[str, Any] = {}
     drains: list[threading.Thread] = []
     try:
-        for _ in range(len(arms)):
-            line = daemon.stdout.readline()
-            if "listening" not in line:
-                raise RuntimeError(f"daemon did not start: {line}{daemon.stderr.read()}")
+        _await_listening(daemon, len(arms), START_TIMEOUT_S)
         drains = [_drain(daemon.stdout, workdir / "daemon.out"),
                   _drain(daemon.stderr, workdir / "daemon.err")]
         # as the daemon's setting says (its default takes the real-time class where it may)

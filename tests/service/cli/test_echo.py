@@ -46,7 +46,7 @@ def test_echo_prints_live_wrenches_events_and_status(tmp_path):
     finally:
         if echo is not None and echo.poll() is None:
             echo.kill()
-        stop_within(daemon, 60.0, "the daemon", signal.SIGINT)
+        _, daemon_err = stop_within(daemon, 60.0, "the daemon", signal.SIGINT)
     line = re.compile(r"t=\s*[\d.]+ s  F=\[.*\] N  \|F\|=\s*[\d.]+ N  T=\[.*\] N m  "
                       r"(free|contact) v\d+")
     printed = [x for x in out.splitlines() if x.startswith("t=")]
@@ -58,6 +58,11 @@ def test_echo_prints_live_wrenches_events_and_status(tmp_path):
     assert status.returncode == 0, status.stderr
     answer = json.loads(status.stdout)
     assert answer["counters"]["estimated"] >= 40 and answer["arm"] == "PSM2"
+    # an external robot served the shipped simulator-trained step 1: said at start and in status
+    model = answer["model"]
+    assert model["spec"] == "seal" and model["origin"] == "simulator" and len(model["digest"]) == 64
+    assert model["warning"] == "a simulator-trained step 1 serves a real arm"
+    assert "trained on the simulator" in daemon_err
     assert told.returncode == 0, told.stderr
     assert "sent" in told.stdout and "dvrk/PSM2/setup" in told.stdout
     assert "accepted: the change is at t = " in told.stdout and "carry-over on" in told.stdout
