@@ -298,7 +298,6 @@ class Daemon:
     def run(self, duration_s: float | None = None) -> int:
         """Start, serve until SIGINT/SIGTERM or ``duration_s``, stop cleanly. Returns 0."""
         def _stop(signum, _frame):
-            print('SIGNAL', time.monotonic(), file=sys.stderr, flush=True)
             self.stop.set()
 
         old = {sig: signal.signal(sig, _stop) for sig in (signal.SIGINT, signal.SIGTERM)}
@@ -312,7 +311,6 @@ class Daemon:
             self.close()
             for sig, handler in old.items():
                 signal.signal(sig, handler)
-        print('RUNEND', time.monotonic(), file=sys.stderr, flush=True)
         return 0
 
     def close(self) -> None:
@@ -328,7 +326,6 @@ class Daemon:
         self.wake.set()
         if self.thread is not None and self.thread.is_alive():
             self.thread.join(timeout=10.0)
-        print('CLOSE thread', time.monotonic(), file=sys.stderr, flush=True)
         if self.worker is not None:                # asked now, waited for last: its exit
             self.worker.stop()                     # overlaps the logs' closing
         for arm in self.arms:
@@ -344,7 +341,6 @@ class Daemon:
             if self.log_writer.close():
                 _say_killed("the log writer process", pid, "after finishing its files")
             self.log_writer = None
-            print('CLOSE logwriter', time.monotonic(), file=sys.stderr, flush=True)
         else:
             for arm in self.arms:
                 arm.log.close()
@@ -352,7 +348,6 @@ class Daemon:
             if self.worker.close():
                 _say_killed("the adaptation worker", self.worker.process.pid,
                             "after its stop message")
-        print('CLOSE worker', time.monotonic(), file=sys.stderr, flush=True)
         for robot in self.robots:
             try:
                 robot.wait(timeout=ROBOT_STOP_S)
@@ -361,7 +356,6 @@ class Daemon:
                 robot.wait()
                 _say_killed("the simulated robot", robot.pid,
                             f"{ROBOT_STOP_S:g} s after SIGINT")
-        print('CLOSE robots', time.monotonic(), file=sys.stderr, flush=True)
         if self.ros_node is not None:
             try:
                 self.ros_node.undeclare()
@@ -371,7 +365,6 @@ class Daemon:
         if self.session is not None:
             self.session.close()
             self.session = None
-        print('CLOSE session', time.monotonic(), file=sys.stderr, flush=True)
         totals = {a.name: (a.pipeline.counters.estimated, a.ring.dropped,
                            a.pipeline.counters.errors, [str(p) for p in a.log.paths])
                   for a in self.arms}
