@@ -8,6 +8,10 @@ beside the daemon on its embedded default; the daemon subscribes to the same key
 The scenario is simulated in blocks of up to two minutes; each new block starts a fresh
 trajectory (the next seed), with time continuing. The first block has no contact in its first
 minute: the daemon's contact-free calibration of step 2.
+
+SIGINT/SIGTERM stop it promptly at any point: while it publishes, before the next sample;
+while it simulates a block (under a second of CPU) or waits for its subscriber, the signal
+interrupts that at once. Either way what was published is recorded and the file finished.
 """
 
 from __future__ import annotations
@@ -15,6 +19,7 @@ from __future__ import annotations
 import dataclasses
 import signal
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 from wrenchd.adapters.mcap_session_writer import SessionWriter
@@ -29,6 +34,36 @@ CONTACT_FREE_START_S = 60.0     # the daemon's default calibration_s
 MATCH_TIMEOUT_S = 5.0           # wait this long for a subscriber before the first sample
 
 
+class _Stopped(Exception):
+    """A stop signal that arrived while the robot simulated or waited (see :class:`_Stop`)."""
+
+
+class _Stop:
+    """The stop request of SIGINT/SIGTERM: a flag the publishing loop reads between samples;
+    inside :meth:`interruptible` (a block's simulation, the wait for a subscriber: no sample
+    is being published) the signal raises :class:`_Stopped` instead, ending that at once."""
+
+    def __init__(self) -> None:
+        self.flag = False
+        self._interruptible = False
+
+    def __call__(self, signum, _frame) -> None:
+        self.flag = True
+        if self._interruptible:
+            self._interruptible = False
+            raise _Stopped
+
+    @contextmanager
+    def interruptible(self):
+        self._interruptible = True
+        try:
+            if self.flag:
+                raise _Stopped
+            yield
+        finally:
+            self._interruptible = False
+
+
 def serve_simulated(scenario: str, seed: int, duration_s: float | None, out_dir: Path,
                     arm: str = "PSM1", rate_hz: float = 200.0,
                     zenoh: ZenohConfig | None = None, prefix: str = "dvrk",
@@ -40,12 +75,8 @@ def serve_simulated(scenario: str, seed: int, duration_s: float | None, out_dir:
     ramp's start; and each new block, which starts the scenario's set-up afresh, when it has
     any) are announced on ``{prefix}/{arm}/setup`` as they happen, as an insufflator or the
     OR's console connected to the daemon would."""
-    stop = {"flag": False}
-
-    def _stop(signum, _frame):
-        stop["flag"] = True
-
-    old = {s: signal.signal(s, _stop) for s in (signal.SIGINT, signal.SIGTERM)}
+    stop = _Stop()
+    old = {s: signal.signal(s, stop) for s in (signal.SIGINT, signal.SIGTERM)}
     out_dir.mkdir(parents=True, exist_ok=True)
     path = out_dir / f"{arm}-{scenario}-seed{seed}.mcap"
     key = f"{prefix}/{arm}/measured_js"
@@ -59,14 +90,19 @@ def serve_simulated(scenario: str, seed: int, duration_s: float | None, out_dir:
                 "scenario": {"name": scenario, "seed": seed, "block_s": BLOCK_S}}) as writer:
             t0_wall = None
             offset, block = 0.0, 0
-            while not stop["flag"]:
+            while not stop.flag:
                 length = BLOCK_S if duration_s is None else min(BLOCK_S, duration_s - offset)
                 if length <= 0:
                     break
                 # the first block leaves the daemon its contact-free calibration minute
-                sim = run_scenario(scenario, length, seed + block,
-                                   config=SimulatorConfig(publish_rate_hz=rate_hz),
-                                   contact_free_s=CONTACT_FREE_START_S if block == 0 else None)
+                try:
+                    with stop.interruptible():
+                        sim = run_scenario(
+                            scenario, length, seed + block,
+                            config=SimulatorConfig(publish_rate_hz=rate_hz),
+                            contact_free_s=CONTACT_FREE_START_S if block == 0 else None)
+                except _Stopped:
+                    break
                 js = dataclasses.replace(sim.joint_states, t=sim.joint_states.t + offset)
                 truth = sim.truth
                 changes = ([(offset + start_s, name) for name, start_s, _ in drift_onsets(sim)]
@@ -74,7 +110,11 @@ def serve_simulated(scenario: str, seed: int, duration_s: float | None, out_dir:
                 if changes and block > 0:
                     changes.insert(0, (offset, "new block"))
                 if t0_wall is None:                     # the clock starts with the first sample
-                    wait_for_subscriber(publisher, MATCH_TIMEOUT_S)
+                    try:
+                        with stop.interruptible():
+                            wait_for_subscriber(publisher, MATCH_TIMEOUT_S)
+                    except _Stopped:
+                        break
                     print(f"wrenchd: simulated {arm} ({scenario}) publishing on '{key}' at "
                           f"{rate_hz:g} Hz, recording to {path}", flush=True)
                     t0_wall = time.monotonic()
@@ -83,7 +123,7 @@ def serve_simulated(scenario: str, seed: int, duration_s: float | None, out_dir:
                     delay = t0_wall + js.t[i] - time.monotonic()
                     if delay > 0:
                         time.sleep(delay)
-                    if stop["flag"]:
+                    if stop.flag:
                         break
                     while changes and js.t[i] >= changes[0][0]:
                         t_change, what = changes.pop(0)

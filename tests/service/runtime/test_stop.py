@@ -210,3 +210,34 @@ def test_a_worker_that_does_not_stop_is_killed_and_said_so(tmp_path):
     assert not _alive(workers[0])
     files = sorted((tmp_path / "logs").glob("PSM2-*.mcap"))
     assert len(files) == 1 and not read_session_report(files[0])[1].truncated
+
+
+def test_the_simulated_robot_stops_at_once_before_it_publishes(tmp_path):
+    """SIGTERM while ``wrenchd robot`` simulates its first block or waits for a subscriber
+    (none comes) ends it within the bound, its recording finished (no samples in it)."""
+    from mcap.reader import make_reader
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    robot = subprocess.Popen(
+        [sys.executable, "-m", "wrenchd", "robot", "--scenario", "trocar-contact", "--arm",
+         "PSM2", "--listen", endpoint, "--out-dir", str(tmp_path), "--quiet"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        # the recording is opened, then the block simulated (under a second), then the
+        # subscriber awaited (seconds): the signal comes in one of the two
+        wait_for(lambda: any(tmp_path.glob("PSM2-*.mcap")), 60.0, "the robot's recording")
+        time.sleep(0.3)
+        start = time.monotonic()
+        robot.send_signal(signal.SIGTERM)
+        try:
+            robot.wait(timeout=30.0)
+        except subprocess.TimeoutExpired:
+            pass
+        elapsed = time.monotonic() - start
+    finally:
+        out, err = communicate_within(robot, 30.0, "the robot")
+    assert robot.returncode == 0, err[-2000:]
+    assert "stopped after 0 samples" in out, out
+    assert elapsed <= STOP_BOUND_S, elapsed
+    with open(next(tmp_path.glob("PSM2-*.mcap")), "rb") as f:
+        assert make_reader(f).get_summary() is not None       # finished: summary and footer
