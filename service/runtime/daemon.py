@@ -339,15 +339,14 @@ class Daemon:
         if self.log_writer is not None:            # writes what is queued, finishes the files
             pid = self.log_writer.process.pid if self.log_writer.process else None
             if self.log_writer.close():
-                _say_killed("the log writer process", pid, "after finishing its files")
+                _say_killed("the log writer process", pid, "when asked to finish its files")
             self.log_writer = None
         else:
             for arm in self.arms:
                 arm.log.close()
-        if self.worker is not None:
-            if self.worker.close():
-                _say_killed("the adaptation worker", self.worker.process.pid,
-                            "after its stop message")
+        if self.worker is not None and self.worker.close():
+            _say_killed("the adaptation worker", self.worker.process.pid,
+                        "after its stop message")
         for robot in self.robots:
             try:
                 robot.wait(timeout=ROBOT_STOP_S)

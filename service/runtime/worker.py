@@ -15,10 +15,10 @@ included): it watches its parent process.
 
 Stopping: the daemon sends ``stop`` (:meth:`WorkerProcess.stop`), which the loop sees at its
 next look at the inbox (it waits there, the duty cycle's pauses included, so a message wakes
-it at once; a round takes milliseconds); the stop goes before any message queued with it. A result the worker queued
-and the daemon no longer reads must not hold it up: a process exits only once its queues'
-feeder threads have written everything, and a round's result (its weights) can fill the
-pipe. So the worker drops what it has not delivered, flushes its output and ends with
+it at once; a round takes milliseconds); the stop goes before any message queued with it. A
+result the worker queued and the daemon no longer reads must not hold it up: a process exits
+only once its queues' feeder threads have written everything, and a round's result (its
+weights) can fill the pipe. So the worker drops what it has not delivered, flushes its output and ends with
 ``os._exit(0)``: its state is in memory or already in its checkpoints, and the interpreter's
 teardown (with torch loaded, about half a second) has nothing left to save. The daemon reads
 the results while it waits all the same (:meth:`WorkerProcess.close`), and kills a worker

@@ -25,14 +25,21 @@ import time
 from pathlib import Path
 
 import pytest
-
 from wrenchd.adapters.mcap_log import TOPIC_EVENTS
 from wrenchd.adapters.mcap_session_reader import read_session_report
 from wrenchd.adapters.messages import encode_joint_state
 from wrenchd.adapters.sim.scenarios import run_scenario
 from wrenchd.adapters.zenoh_io import ZenohConfig, open_session
-from tests.support import (children_of, communicate_within, free_port, read_mcap,
-                           readline_within, wait_for, write_config)
+
+from tests.support import (
+    children_of,
+    communicate_within,
+    free_port,
+    read_mcap,
+    readline_within,
+    wait_for,
+    write_config,
+)
 
 STOP_BOUND_S = 1.0          # SIGTERM to exit [s]
 STREAM_S = 10.0             # joint states streamed before the stop [s]: rounds run from ~5 s
@@ -92,7 +99,7 @@ class _Publisher:
                 return
             if self._stop.is_set():
                 return
-            self.pub.put(encode_joint_state("json", int(round(js.t[i] * 1e9)), js.names,
+            self.pub.put(encode_joint_state("json", round(js.t[i] * 1e9), js.names,
                                             js.position[i], js.velocity[i], js.effort[i]))
             self.sent += 1
 
@@ -204,7 +211,7 @@ def test_a_worker_that_does_not_stop_is_killed_and_said_so(tmp_path):
         os.kill(workers[0], signal.SIGSTOP)
         daemon.send_signal(signal.SIGTERM)
     finally:
-        out, err = communicate_within(daemon, 30.0, "the daemon")
+        _, err = communicate_within(daemon, 30.0, "the daemon")
     assert daemon.returncode == 0, err[-2000:]
     assert f"the adaptation worker (pid {workers[0]})" in err and KILLED in err, err[-2000:]
     assert not _alive(workers[0])
