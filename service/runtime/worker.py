@@ -16,13 +16,13 @@ included): it watches its parent process.
 Stopping: the daemon sends ``stop`` (:meth:`WorkerProcess.stop`), which the loop sees at its
 next look at the inbox (it waits there, the duty cycle's pauses included, so a message wakes
 it at once; a round takes milliseconds); the stop goes before any message queued with it. A
-result the worker queued and the daemon no longer reads must not hold it up: a process exits
-only once its queues' feeder threads have written everything, and a round's result (its
-weights) can fill the pipe. So the worker drops what it has not delivered, flushes its output and ends with
-``os._exit(0)``: its state is in memory or already in its checkpoints, and the interpreter's
-teardown (with torch loaded, about half a second) has nothing left to save. The daemon reads
-the results while it waits all the same (:meth:`WorkerProcess.close`), and kills a worker
-that has not ended within its bound, saying so.
+result the worker queued must not hold it up for long, nor be cut in half: the worker gives
+its queue's feeder thread at most ``FLUSH_TIMEOUT_S`` to write whole messages (the daemon
+reads them while it waits, :meth:`WorkerProcess.close`; a round's result, its weights, can
+fill the pipe), flushes its output and ends with ``os._exit(0)``: its state is in memory or
+already in its checkpoints, and the interpreter's teardown (with torch loaded, about half a
+second) has nothing left to save. The daemon kills a worker that has not ended within its
+bound, saying so.
 
 Clocks: the worker schedules rounds on its own clock (seconds since it started), which is what
 a round result's ``t`` holds; the pipeline stamps the ``round`` and ``model`` events with the
@@ -37,6 +37,7 @@ import os
 import queue
 import signal
 import sys
+import threading
 import time
 import traceback
 from pathlib import Path
@@ -54,6 +55,8 @@ _POLL_S = 0.02          # and look for round results at most this often [s]: pol
 
 #: how long :meth:`WorkerProcess.close` waits for the worker to end before killing it [s]
 CLOSE_TIMEOUT_S = 2.0
+#: how long a stopped worker waits for its queued results to reach the pipe [s]
+FLUSH_TIMEOUT_S = 0.5
 
 
 def _main(inbox: mp.Queue, outbox: mp.Queue, configs: dict[str, dict[str, Any]],
@@ -62,7 +65,13 @@ def _main(inbox: mp.Queue, outbox: mp.Queue, configs: dict[str, dict[str, Any]],
     """The worker process: :func:`_run` until stopped (or orphaned), then an immediate exit
     that waits neither for undelivered results nor for the interpreter's teardown."""
     _run(inbox, outbox, configs, normalisations, models_dir, max_cpu_fraction, cpus)
-    outbox.cancel_join_thread()           # undelivered results: nobody waits for them
+    # Hand over what was queued, whole: an exit in the middle of a message would leave half of
+    # it in the pipe, and the daemon, which reads while it waits, would wait for the rest for
+    # ever. Only a daemon that no longer reads makes this wait last its full bound.
+    outbox.close()
+    feeder = threading.Thread(target=outbox.join_thread, daemon=True)
+    feeder.start()
+    feeder.join(FLUSH_TIMEOUT_S)
     for stream in (sys.stdout, sys.stderr):
         try:
             stream.flush()
@@ -195,8 +204,8 @@ class WorkerProcess:
         self.stop()
         deadline = time.monotonic() + timeout
         while self.process.is_alive() and time.monotonic() < deadline:
+            self._drain()        # a live worker writes whole messages (see its exit path)
             self.process.join(timeout=min(_POLL_S, max(0.0, deadline - time.monotonic())))
-            self._drain()
         killed = self.process.is_alive()
         if killed:
             self.process.kill()
