@@ -22,7 +22,7 @@ def test_echo_prints_live_wrenches_events_and_status(tmp_path):
     try:
         expect_line(daemon, "dvrk/PSM2/measured_js", 120.0, "the daemon")
         echo = subprocess.Popen([*CLI, "echo", "--arm", "PSM2", "--connect", endpoint,
-                                 "--count", "40", "--every", "1", "--events", "--timeout", "90"],
+                                 "--count", "500", "--every", "1", "--events", "--timeout", "90"],
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         expect_line(echo, "listening on 'dvrk/PSM2/wrenchd/measured_cf'", 60.0, "wrenchd echo")
         robot = subprocess.run(
@@ -50,14 +50,17 @@ def test_echo_prints_live_wrenches_events_and_status(tmp_path):
     line = re.compile(r"t=\s*[\d.]+ s  F=\[.*\] N  \|F\|=\s*[\d.]+ N  T=\[.*\] N m  "
                       r"(free|contact) v\d+")
     printed = [x for x in out.splitlines() if x.startswith("t=")]
-    assert len(printed) == 40 and all(line.match(x) for x in printed), printed[:3]
+    assert len(printed) == 500 and all(line.match(x) for x in printed), printed[:3]
     stamps = [float(x.split()[0][2:] or x.split()[1]) for x in printed]
     assert stamps == sorted(stamps)
-    assert any(x.startswith("event: ") and '"calibrating"' in x for x in out.splitlines())
-    assert out.splitlines()[-1] == "wrenchd echo: 40 wrenches"
+    # the calibration's start (first sample) or end (2 s in, within the 500 wrenches): echo's
+    # event subscription reaches the daemon asynchronously and may miss the very first sample
+    assert any(x.startswith("event: ") and ('"calibrating"' in x or '"calibrated"' in x)
+               for x in out.splitlines())
+    assert out.splitlines()[-1] == "wrenchd echo: 500 wrenches"
     assert status.returncode == 0, status.stderr
     answer = json.loads(status.stdout)
-    assert answer["counters"]["estimated"] >= 40 and answer["arm"] == "PSM2"
+    assert answer["counters"]["estimated"] >= 500 and answer["arm"] == "PSM2"
     # an external robot served the shipped simulator-trained step 1: said at start and in status
     model = answer["model"]
     assert model["spec"] == "seal" and model["origin"] == "simulator" and len(model["digest"]) == 64
