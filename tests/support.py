@@ -51,8 +51,9 @@ def wait_for(predicate, timeout: float, what: str) -> None:
 
 
 def write_config(path: Path, endpoint: str, encoding: str, log_dir: Path,
-                 arms: tuple[str, ...] = ("PSM2",)) -> Path:
-    """An external-robot daemon config listening on ``endpoint``; each arm calibrates 2 s."""
+                 arms: tuple[str, ...] = ("PSM2",), model: str | None = None) -> Path:
+    """An external-robot daemon config listening on ``endpoint``; each arm calibrates 2 s and
+    serves ``model`` (default: the settings' default step 1)."""
     text = f"""
 robot = "external"
 [zenoh]
@@ -64,6 +65,7 @@ directory = "{log_dir}"
         text += f"""[[arms]]
 name = "{arm}"
 encoding = "{encoding}"
+{f'model = "{model}"' if model else ""}
 [arms.pipeline]
 calibration_s = 2.0
 """

@@ -15,7 +15,7 @@ import pytest
 from rosbags.rosbag2 import Writer
 from rosbags.typesys import Stores, get_typestore
 
-from tests.support import expect_line, free_port, stop_within, wait_for
+from tests.support import expect_line, free_port, stop_within, wait_for, write_config
 from wrenchd.adapters.csv_psm import read_wpi_csv
 from wrenchd.adapters.messages import decode_wrench, encode_joint_state
 from wrenchd.adapters.zenoh_io import ZenohConfig, open_session
@@ -92,20 +92,8 @@ def test_replay_serves_the_bundle(bundle, wpi_data, tmp_path):
 def test_serve_takes_the_bundle_and_says_where_it_came_from(bundle, wpi_data, tmp_path):
     out, report = bundle
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    config = tmp_path / "wrenchd.toml"
-    config.write_text(f"""
-robot = "external"
-[zenoh]
-listen = ["{endpoint}"]
-[log]
-directory = "{tmp_path / 'logs'}"
-[[arms]]
-name = "PSM1"
-encoding = "json"
-model = "{out}"
-[arms.pipeline]
-calibration_s = 2.0
-""")
+    config = write_config(tmp_path / "wrenchd.toml", endpoint, "json", tmp_path / "logs",
+                          arms=("PSM1",), model=str(out))
     js, _ = read_wpi_csv(wpi_data / "two.csv")
     daemon = subprocess.Popen([*CLI, "serve", "--config", str(config)], stdout=subprocess.PIPE,
                               stderr=subprocess.PIPE, text=True)
