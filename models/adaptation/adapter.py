@@ -75,7 +75,7 @@ SETUP_KINDS = ("pressure", "instrument")
 def normalisation_of(free_space) -> dict[str, np.ndarray] | None:
     """The step-1 model's normalisation as a ``Corr`` normalisation (plain arrays); None for
     a model without one (a hybrid step 1): the adapter then fits it on its first samples."""
-    if not hasattr(free_space, "in_mean"):
+    if not isinstance(free_space, torch.nn.Module):
         return None
     return {"in_mean": free_space.in_mean.double().numpy().copy(),
             "in_std": free_space.in_std.double().numpy().copy(),

@@ -101,7 +101,7 @@ class BatchedEstimator(TwoStepEstimator):
         self._stop = False
         self._failure: BaseException | None = None
         self._progress = threading.Condition()
-        if not hasattr(self.free_space, "forward_normalised"):
+        if not isinstance(self.free_space, torch.nn.Module):
             # a NumPy step 1 (the hybrid): its batch path is the streaming one, per segment
             for a, b in self._segments:
                 self.step1[a:b] = self.free_space.predict_sequence(self.features[a:b])
