@@ -47,6 +47,18 @@ RATE_HZ = 200.0
 KILLED = "killed it"        # what the daemon says of a child it had to kill (stderr)
 
 
+def _sigterm_seconds(proc: subprocess.Popen) -> float:
+    """Seconds from SIGTERM to ``proc``'s exit (waiting at most 30 s; the caller's checks and
+    its ``finally`` deal with one still running)."""
+    start = time.monotonic()
+    proc.send_signal(signal.SIGTERM)
+    try:
+        proc.wait(timeout=30.0)
+    except subprocess.TimeoutExpired:
+        pass
+    return time.monotonic() - start
+
+
 def _alive(pid: int) -> bool:
     """Whether ``pid`` is a process that has not ended (a zombie has ended)."""
     try:
@@ -140,13 +152,7 @@ def _serve_and_stop(tmp: Path, robot: str) -> tuple[float, str, dict[int, tuple[
             _line_with(daemon, "simulated PSM2", 60.0, "the simulated robot")
         time.sleep(STREAM_S)
         children = {pid: (_cmdline(pid), _nice(pid)) for pid in children_of(daemon.pid)}
-        start = time.monotonic()
-        daemon.send_signal(signal.SIGTERM)
-        try:
-            daemon.wait(timeout=30.0)
-        except subprocess.TimeoutExpired:
-            pass
-        elapsed = time.monotonic() - start
+        elapsed = _sigterm_seconds(daemon)
     finally:
         if publisher is not None:
             publisher.close()
@@ -234,13 +240,7 @@ def test_the_simulated_robot_stops_at_once_before_it_publishes(tmp_path):
         # subscriber awaited (seconds): the signal comes in one of the two
         wait_for(lambda: any(tmp_path.glob("PSM2-*.mcap")), 60.0, "the robot's recording")
         time.sleep(0.3)
-        start = time.monotonic()
-        robot.send_signal(signal.SIGTERM)
-        try:
-            robot.wait(timeout=30.0)
-        except subprocess.TimeoutExpired:
-            pass
-        elapsed = time.monotonic() - start
+        elapsed = _sigterm_seconds(robot)
     finally:
         out, err = communicate_within(robot, 30.0, "the robot")
     assert robot.returncode == 0, err[-2000:]
