@@ -20,6 +20,7 @@ from wrenchd.models.errors import ConfigError, DataError
 from wrenchd.models.estimator.free_space import FreeSpaceModel
 from wrenchd.models.series import JOINT_NAMES
 from wrenchd.service.runtime.settings import ArmConfig, ServiceSettings
+from wrenchd.service.runtime.scheduling import thread_scheduling
 from wrenchd.service.pipeline import ArmPipeline, Estimate, Event
 from wrenchd.service.runtime.log_process import LogWriterProcess
 from wrenchd.service.pipeline.step1 import Step1
@@ -66,6 +67,7 @@ class ArmRuntime:
         self.log_writer: LogWriterProcess | None = None    # set by the daemon before start()
         self.console: Console | None = None                 # likewise
         self.realtime_priority: int | None = None           # likewise: the sample path's
+        self.estimation_tid: int | None = None              # likewise, once it runs
         self.zenoh_links: dict[str, int] = {"routers": 0, "peers": 0, "link_losses": 0}
         self.live = None        # Foxglove live view (adapters/foxglove_live.ArmLiveView), set by the daemon
         self._log_problem_reported = False
@@ -144,6 +146,8 @@ class ArmRuntime:
         s["latency_us"] = percentiles(list(self.latency_us))
         s["encoding"] = self.cfg.encoding
         s["realtime_priority"] = self.realtime_priority
+        if self.estimation_tid is not None:         # what the kernel gives the sample path
+            s["scheduling"] = thread_scheduling(self.estimation_tid)
         s["zenoh"] = dict(self.zenoh_links)
         s["keys"] = self.keys
         s["log"] = {"path": str(self.log.path) if self.log.path else None,

@@ -178,6 +178,8 @@ class Daemon:
         self.thread = threading.Thread(target=self._estimate, name="wrenchd-estimate",
                                        daemon=True)
         self.thread.start()
+        for arm in self.arms:
+            arm.estimation_tid = self.thread.native_id
         if self.realtime_priority is not None:
             # The log writer and the console take the GIL too: left in the normal class, one
             # preempted by other programs while holding it would hold up estimation with it.

@@ -23,6 +23,24 @@ from wrenchd.models.errors import ConfigError
 AUTO_REALTIME_PRIORITY = 10
 
 
+#: Linux scheduling policies by number, as the status names them.
+POLICY_NAMES = {os.SCHED_OTHER: "SCHED_OTHER", os.SCHED_FIFO: "SCHED_FIFO",
+                os.SCHED_RR: "SCHED_RR", os.SCHED_BATCH: "SCHED_BATCH",
+                os.SCHED_IDLE: "SCHED_IDLE"}
+
+
+def thread_scheduling(tid: int) -> dict[str, object]:
+    """The scheduling class the kernel gives thread ``tid`` now: ``{"class": "SCHED_FIFO",
+    "priority": 10}`` (priority 0 in the normal class), or ``{"class": None}`` for a thread
+    that is gone."""
+    try:
+        policy = os.sched_getscheduler(tid)
+        priority = os.sched_getparam(tid).sched_priority
+    except OSError:
+        return {"class": None, "priority": None}
+    return {"class": POLICY_NAMES.get(policy & 0xFF, str(policy)), "priority": priority}
+
+
 def one_compute_thread() -> None:
     """Limit NumPy's BLAS and torch to one thread in this process."""
     import torch

@@ -83,7 +83,7 @@ def test_systemd_unit():
     text = UNIT.read_text()
     for directive in ("User=wrenchd", "Restart=on-failure", "StartLimitBurst=5",
                       "NoNewPrivileges=yes", "ProtectSystem=strict", "StateDirectory=wrenchd/%i",
-                      "LogsDirectory=wrenchd/%i",
+                      "LogsDirectory=wrenchd/%i", "LimitRTPRIO=20", "RestrictRealtime=no",
                       "ReadWritePaths=/var/log/wrenchd/%i /var/lib/wrenchd/%i",
                       "ExecStart=/opt/wrenchd/bin/wrenchd serve --config /etc/wrenchd/%i.toml"):
         assert re.search(rf"^{re.escape(directive)}$", text, re.M), directive

@@ -94,8 +94,12 @@ def test_daemon_end_to_end(tmp_path, encoding):
     assert all(np.isfinite(w[2]).all() for w in wrenches)
     if encoding == "json":
         assert all("free" in w[3] and "model_version" in w[3] for w in wrenches)
-    # the status answers with the counters
+    # the status answers with the counters, and says which scheduling class the kernel gives
+    # the sample path (the real-time class where this process may use it, by default)
     assert status["counters"]["estimated"] == published
+    rt = status["realtime_priority"]
+    assert status["scheduling"] == ({"class": "SCHED_FIFO", "priority": rt} if rt is not None
+                                    else {"class": "SCHED_OTHER", "priority": 0}), status
     assert status["counters"]["errors"] == 3
     assert status["counters"]["error_kinds"] == {"decode": 1, "invalid": 1, "setup": 1}
     assert status["counters"]["setup_changes"] == 1
