@@ -47,6 +47,7 @@ from wrenchd.models.physics.causal_acceleration import (
     CausalAcceleration,
     CausalAccelerationConfig,
     accel_window,
+    lookahead_samples,
 )
 from wrenchd.models.physics.dynamics import RigidBodyModel
 from wrenchd.models.physics.least_squares import (
@@ -238,7 +239,9 @@ class HybridStep1:
             n_layers = len(config.residual.hidden) + 1
             layers = tuple((a[f"layer{k}.weight"], a[f"layer{k}.bias"]) for k in range(n_layers))
             return cls(config, RigidBodyFrictionModel.from_dict(description["physics"]),
-                       CausalAcceleration(a["acceleration_weights"], description["dt_s"]),
+                       CausalAcceleration(a["acceleration_weights"], description["dt_s"],
+                                          lookahead_samples(config.acceleration,
+                                                            description["dt_s"])),
                        ResidualNet(layers, a["in_mean"], a["in_scale"], a["out_scale"]),
                        Coverage(a["coverage_points"], a["coverage_mean"], a["coverage_scale"],
                                 config.coverage), dict(description.get("info", {})))

@@ -10,6 +10,9 @@
         --out /tmp/split.md
 
 ``--train`` may be given more than once; ``file:a:b`` takes the window from a to b seconds.
+``--lookahead-ms 10,25`` adds the hybrid with an acceleration that reads that far past the
+estimated sample: the accuracy an estimate published that much later would have (offline
+only; the service's step 1 is causal).
 The evaluation is :mod:`wrenchd.service.studies.real_data`; the report is Markdown with a JSON
 copy of the numbers beside it.
 """
@@ -35,12 +38,25 @@ def _models(text: str) -> tuple[str, ...]:
     return names
 
 
+def _milliseconds(text: str) -> tuple[float, ...]:
+    try:
+        values = tuple(float(v) for v in text.split(",") if v.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated milliseconds, got {text!r}"
+                                         ) from None
+    if not values or any(not v > 0 for v in values):
+        raise argparse.ArgumentTypeError(f"look-aheads must be positive, got {text!r}")
+    return values
+
+
 def _command(args: argparse.Namespace) -> str:
     parts = ["wrenchd", "real-data"]
     if args.models != MODEL_NAMES:
         parts += ["--models", ",".join(args.models)]
     parts += [a for t in args.train for a in ("--train", t)] + ["--test", args.test]
     parts += [a for t in args.load for a in ("--load", t)]
+    if args.lookahead_ms:
+        parts += ["--lookahead-ms", ",".join(f"{ms:g}" for ms in args.lookahead_ms)]
     for flag in ("seed", "epochs", "hybrid_epochs", "threads"):
         value = getattr(args, flag)
         if value:
@@ -56,7 +72,8 @@ def _cmd(args: argparse.Namespace) -> int:
     if args.threads:
         torch.set_num_threads(args.threads)
     r = evaluate([Source.parse(t) for t in args.train], Source.parse(args.test), args.models,
-                 args.seed, args.epochs, args.hybrid_epochs, [Source.parse(s) for s in args.load])
+                 args.seed, args.epochs, args.hybrid_epochs, [Source.parse(s) for s in args.load],
+                 args.lookahead_ms)
     try:
         from wrenchd.service.provenance import PROVENANCE_KEY, provenance
     except ImportError:                       # pragma: no cover - older trees
@@ -91,6 +108,9 @@ def register(subparsers) -> None:
     p.add_argument("--epochs", type=int, default=None, help="replace the LSTM recipe's epochs")
     p.add_argument("--hybrid-epochs", type=int, default=None,
                    help="replace the hybrid residual net's epochs (200)")
+    p.add_argument("--lookahead-ms", type=_milliseconds, default=(),
+                   help="also the hybrid whose acceleration reads this far ahead, e.g. 10,25 "
+                        "(offline: measures what that latency would buy)")
     p.add_argument("--threads", type=int, default=None, help="torch CPU threads")
     p.add_argument("--notes", default=None, help="Markdown appended to the report")
     p.set_defaults(func=_cmd)

@@ -65,6 +65,9 @@ def load_bundle_step1(path: str | os.PathLike[str]):
         raise ConfigError(f"{path}: the bundle holds no hybrid step-1 model")
     arrays = {k: v.numpy() for k, v in bundle.weights.items()}
     model = HybridStep1.from_parts(arrays, {**cfg, "physics": bundle.physics})
+    if model.acceleration.lookahead:
+        raise ConfigError(f"{path}: the bundle's step 1 reads {model.acceleration.lookahead} "
+                          "samples ahead (an offline study's model) and cannot serve")
     held_out = (bundle.report or {}).get("held_out", {}).get("hybrid_rmse")
     if held_out is not None:
         model.validation_rmse = tuple(float(v) for v in held_out)

@@ -12,6 +12,11 @@ Models (``--models`` of ``wrenchd real-data``), all trained on the same free-mot
 * ``lstm-residual``: the hybrid's physics plus the paper's LSTMs trained on its residual,
   behind the same trust gate (the network choice, compared).
 
+With ``lookahead_ms``, the hybrid is fitted again for each look-ahead, its acceleration
+filter reading that far past the estimated sample (``hybrid_lookahead_<ms>ms``): what an
+estimate published that much later would gain over the causal one. Such a model does not
+stream; it measures a latency the service does not have.
+
 Besides the RMSE per joint: the share of test samples inside the hybrid's training coverage
 and the errors there, the test recording's run-to-run repeatability (its trajectories repeat:
 the torque difference at the same phase one period apart, over sqrt 2, is the noise of one
@@ -81,6 +86,11 @@ class Source:
         if keep.sum() < 50:
             raise DataError(f"{self.label}: fewer than 50 samples in the window")
         return JointStates(js.t[keep], js.position[keep], js.velocity[keep], js.effort[keep])
+
+
+def lookahead_key(ms: float) -> str:
+    """Result key of the hybrid whose acceleration reads ``ms`` milliseconds ahead."""
+    return f"hybrid_lookahead_{ms:g}ms"
 
 
 def rmse(pred: np.ndarray, target: np.ndarray) -> list[float]:
@@ -171,20 +181,30 @@ class Trained:
     """The models of one experiment, trained on ``train`` (a list of series)."""
 
     def __init__(self, train: Sequence[JointStates], models: Sequence[str], seed: int,
-                 lstm_epochs: int | None, hybrid_epochs: int | None, train_label: str) -> None:
+                 lstm_epochs: int | None, hybrid_epochs: int | None, train_label: str,
+                 lookahead_ms: Sequence[float] = ()) -> None:
         from wrenchd.models.estimator.hybrid import (
             HybridConfig,
             ResidualNetConfig,
             fit_hybrid,
         )
+        from wrenchd.models.physics.causal_acceleration import CausalAccelerationConfig
 
         self.models, self.meta = tuple(models), {}
+        self.lookahead: dict[str, Any] = {}
         if {"hybrid", "lstm-residual"} & set(models):
             residual = ResidualNetConfig(seed=seed, **({"epochs": hybrid_epochs}
                                                        if hybrid_epochs else {}))
             self.hybrid = fit_hybrid(train, HybridConfig(residual=residual))
             self.meta["hybrid_info"] = self.hybrid.info
             self.meta["hybrid_config"] = self.hybrid.config.model_dump()
+        if "hybrid" in models:
+            for ms in lookahead_ms:
+                accel = CausalAccelerationConfig(lookahead_s=ms / 1000.0)
+                self.lookahead[lookahead_key(ms)] = fit_hybrid(
+                    train, HybridConfig(residual=residual, acceleration=accel))
+            if lookahead_ms:
+                self.meta["lookahead_ms"] = [float(ms) for ms in lookahead_ms]
         if "ls" in models:
             from wrenchd.models.physics.least_squares import (
                 PLAIN_LEAST_SQUARES,
@@ -242,6 +262,8 @@ class Trained:
                 out["lstm_residual"] = (parts.physics + parts.weight[:, None]
                                         * self.lstm_residual.predict_sequence(x))
             out["_weight"] = parts.weight
+        for key, model in self.lookahead.items():
+            out[key] = model.parts(x).torque
         return out
 
 
@@ -274,16 +296,19 @@ def scores(trained: Trained, series: Sequence[JointStates]) -> dict[str, Any]:
 
 def evaluate(train: Sequence[Source], test: Source, models: Sequence[str] = MODELS,
              seed: int = 0, lstm_epochs: int | None = None, hybrid_epochs: int | None = None,
-             loads: Sequence[Source] = ()) -> dict[str, Any]:
+             loads: Sequence[Source] = (), lookahead_ms: Sequence[float] = ()) -> dict[str, Any]:
     """Train the chosen models on ``train``, score them on ``train`` and ``test``, and
-    estimate the external torque on each of ``loads``. Returns a JSON-ready dict."""
+    estimate the external torque on each of ``loads``; ``lookahead_ms``: the hybrid again
+    with an acceleration reading that far ahead (offline). Returns a JSON-ready dict."""
     unknown = set(models) - set(MODELS)
     if unknown or not models:
         raise ConfigError(f"unknown models {sorted(unknown)}; choose from {', '.join(MODELS)}")
     train_series = [s.load() for s in train]
     test_series = test.load()
+    if lookahead_ms and "hybrid" not in models:
+        raise ConfigError("a look-ahead is measured on the hybrid: add it to the models")
     trained = Trained(train_series, models, seed, lstm_epochs, hybrid_epochs,
-                      ",".join(s.label for s in train))
+                      ",".join(s.label for s in train), lookahead_ms)
     r: dict[str, Any] = {"train": [s.label for s in train], "test": test.label,
                          "models": list(models), "seed": seed, **trained.meta}
     r["train_file"] = scores(trained, train_series)

@@ -13,25 +13,36 @@ COLUMNS = (("lstm", "paper LSTM"), ("ls_plain", "LS first (sign, offline)"),
            ("ls", "LS (offline)"), ("ls_causal", "LS causal (hybrid's physics)"),
            ("hybrid", "hybrid"), ("hybrid_ungated", "hybrid, no trust gate"),
            ("lstm_residual", "physics + LSTM residual"))
+#: Result keys of the hybrids with a look-ahead start with this (``hybrid_lookahead_10ms``).
+LOOKAHEAD_PREFIX = "hybrid_lookahead_"
 
 
 def _f(x: float | None) -> str:
     return "-" if x is None else f"{x:.4f}"
 
 
+def _lookahead_columns(d: dict[str, Any]) -> list[tuple[str, str]]:
+    """The hybrids with a look-ahead in ``d``: (key, title), shortest look-ahead first."""
+    keys = [k[:-len("_rmse")] for k in d
+            if k.startswith(LOOKAHEAD_PREFIX) and k.endswith("ms_rmse")]
+    ms = {k: float(k[len(LOOKAHEAD_PREFIX):-2]) for k in keys}
+    return [(k, f"hybrid, {ms[k]:g} ms ahead (offline)") for k in sorted(keys, key=ms.get)]
+
+
 def rmse_table(d: dict[str, Any], floor: list[float] | None = None) -> list[str]:
     """Per-joint RMSE of every model present in ``d``, with hybrid / LS and the floor."""
-    cols = [(k, t) for k, t in COLUMNS if f"{k}_rmse" in d]
-    ratio = "hybrid_rmse" in d and "ls_rmse" in d
+    cols = [(k, t) for k, t in COLUMNS if f"{k}_rmse" in d] + _lookahead_columns(d)
+    ratios = ([(k, "hybrid / LS" if k == "hybrid" else t.split(" (")[0] + " / LS")
+               for k, t in cols if k.startswith("hybrid") and k != "hybrid_ungated"]
+              if "ls_rmse" in d else [])
     head = ["joint", "unit", "torque std"] + [t for _, t in cols]
-    head += ["hybrid / LS"] if ratio else []
+    head += [t for _, t in ratios]
     head += ["repeatability floor"] if floor else []
     lines = ["| " + " | ".join(head) + " |", "|" + " --- |" * len(head)]
     for j, name in enumerate(JOINT_NAMES):
         row = [f"{j + 1} {name}", UNITS[j], _f(d["torque_std"][j])]
         row += [_f(d[f"{k}_rmse"][j]) for k, _ in cols]
-        if ratio:
-            row.append(f"{d['hybrid_rmse'][j] / d['ls_rmse'][j]:.3f}")
+        row += [f"{d[f'{k}_rmse'][j] / d['ls_rmse'][j]:.3f}" for k, _ in ratios]
         if floor:
             row.append(_f(floor[j]))
         lines.append("| " + " | ".join(row) + " |")
@@ -114,6 +125,10 @@ def markdown(r: dict[str, Any], command: str) -> str:
                      f"fitted to the centred one), rank {i['physics_rank']}, plus a 2 x 128 tanh "
                      f"residual net on [q, dq, acceleration] ({i['residual_train_seconds']} s), "
                      "behind a nearest-neighbour trust gate in normalised (q, dq).")
+    if r.get("lookahead_ms"):
+        lines.append("Hybrid, N ms ahead (offline): the same hybrid fitted again with an "
+                     "acceleration filter that reads N ms past the estimated sample; it cannot "
+                     "stream: it shows what publishing each estimate N ms late would buy.")
     lines.append("")
     rep = r["test_file"].get("repeatability")
     lines += ["## Test: torque RMSE per joint\n"]

@@ -93,6 +93,32 @@ def test_causal_acceleration_streams_like_the_batch():
     np.testing.assert_allclose(np.concatenate([first, rest]), batch, atol=1e-12)
 
 
+def test_a_lookahead_filter_reads_the_future_and_does_not_stream():
+    _, dq, _ = motion(20.0)
+    _, held_dq, held_ddq = motion(10.0, seed=3)
+    causal = CausalAcceleration.fit([dq], DT)
+    ahead = CausalAcceleration.fit([dq], DT, CausalAccelerationConfig(lookahead_s=5 * DT))
+    assert ahead.lookahead == 5 and causal.lookahead == 0
+
+    def err(ca):
+        return np.sqrt(np.mean((ca.estimate(held_dq) - held_ddq)[ca.taps:-ca.taps] ** 2))
+
+    # Five samples of the future halve the error at least (the target is the centred
+    # derivative, which reads ten ahead).
+    assert err(ahead) < 0.5 * err(causal), (err(ahead), err(causal))
+    changed = held_dq.copy()
+    changed[500:] += 1.0
+    est, est_changed = ahead.estimate(held_dq), ahead.estimate(changed)
+    np.testing.assert_array_equal(est_changed[:495], est[:495])
+    assert not np.allclose(est_changed[495:500], est[495:500])
+    with pytest.raises(ConfigError, match="cannot stream"):
+        ahead.step(held_dq[:1], ahead.initial_state(1))
+    with pytest.raises(ConfigError, match="cannot stream"):
+        ahead.run(held_dq[:10], ahead.initial_state(1))
+    with pytest.raises(ConfigError, match="taps"):
+        CausalAcceleration.fit([dq], DT, CausalAccelerationConfig(taps=8, lookahead_s=8 * DT))
+
+
 def test_causal_acceleration_refusals():
     with pytest.raises(DataError):
         CausalAcceleration.fit([np.zeros((5, 6))], DT)         # shorter than the target window

@@ -22,7 +22,7 @@ def test_split_experiment_and_loads(wpi_data, tmp_path):
            "--hybrid-epochs", "40", "--threads", "1",
            "--train", f"{d}/one_no_weight.csv", "--train", f"{d}/two.csv:0:18",
            "--test", f"{d}/two.csv:18:30", "--load", f"{d}/one_105g_parallel.csv",
-           "--load", f"{d}/one_205g_parallel.csv", "--out", str(out)]
+           "--load", f"{d}/one_205g_parallel.csv", "--lookahead-ms", "25", "--out", str(out)]
     done = subprocess.run(cmd, check=False, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr[-2000:]
     r = json.loads(out.with_suffix(".json").read_text())
@@ -34,6 +34,9 @@ def test_split_experiment_and_loads(wpi_data, tmp_path):
     assert test["coverage"]["share_full"] > 0.9
     assert np.all(hyb[:2] < 0.8 * ls[:2]), (hyb, ls)
     assert np.all(hyb < 1.02 * ls), (hyb, ls)
+    # The same hybrid with an acceleration reading 25 ms ahead (offline) is a hybrid too.
+    ahead = np.array(test["hybrid_lookahead_25ms_rmse"])
+    assert np.all(ahead[:2] < 0.8 * ls[:2]), (ahead, ls)
     assert test["repeatability"]["period_s"] == pytest.approx(6.48, abs=0.05)
     # The loaded recordings repeat trajectory one: the fitted load moment grows with the mass
     # (105 g and 205 g: measured ratio 1.97).
@@ -43,6 +46,7 @@ def test_split_experiment_and_loads(wpi_data, tmp_path):
     assert r["train"][1].endswith("two.csv:0:18") and "provenance" in r
     text = out.read_text()
     assert text.count("outer_yaw") >= 3 and "--train" in text and "Load ratio" in text
+    assert "--lookahead-ms 25" in text and "25 ms ahead (offline)" in text
 
 
 def test_sources_parse():
