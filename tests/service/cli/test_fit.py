@@ -139,3 +139,24 @@ def test_a_still_recording_is_refused(wpi_data, tmp_path):
     assert done.returncode == 2, done.stderr
     assert "too little motion" in done.stderr and "Traceback" not in done.stderr
     assert not (tmp_path / "b").exists()
+
+
+def test_a_bundle_whose_step1_reads_ahead_is_refused(bundle, tmp_path):
+    """An offline study's model (an acceleration filter reading samples ahead) never serves."""
+    from wrenchd.adapters.bundle import read_bundle, write_bundle
+    from wrenchd.models.errors import ConfigError
+    from wrenchd.service.pipeline.step1 import load_bundle_step1
+
+    out, _ = bundle
+    original = read_bundle(out)
+    config = json.loads(json.dumps(original.weights_config))
+    config["config"]["acceleration"]["lookahead_s"] = 0.01
+    copy = write_bundle(tmp_path / "ahead", arm="PSM1", origin="robot",
+                        physics=original.physics, report_md="", report=original.report,
+                        data_files=[out / "manifest.json"], weights=original.weights,
+                        weights_config=config)
+    model, _ = load_bundle_step1(out)                  # the bundle as fitted serves
+    assert model.acceleration.lookahead == 0
+    with pytest.raises(ConfigError, match="cannot serve"):
+        load_bundle_step1(tmp_path / "ahead")
+    assert copy.weights_config["config"]["acceleration"]["lookahead_s"] == 0.01
