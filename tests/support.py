@@ -176,3 +176,29 @@ def communicate_within(proc: subprocess.Popen, timeout: float, what: str) -> tup
         err = _kill_and_stderr(proc)
         raise AssertionError(f"{what} did not finish within {timeout} s; killed it. "
                              f"stderr:\n{err}") from None
+
+
+#: A lab's wall-clock stamps (ns) for recordings written in the tests.
+LAB_EPOCH_NS = 1_764_000_000_000_000_000
+
+
+def ros2_bag_from(js, path: Path, topic: str = "/PSM1/measured_js") -> Path:
+    """A rosbag2 directory (MCAP storage) written by rosbags alone, as a dVRK ROS 2 system
+    records ``measured_js``."""
+    from rosbags.rosbag2 import Writer
+    from rosbags.typesys import Stores, get_typestore
+    from wrenchd.models.series import JOINT_NAMES
+
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    t, js_type = store.types, "sensor_msgs/msg/JointState"
+    with Writer(path, version=9) as writer:
+        conn = writer.add_connection(topic, js_type, typestore=store)
+        for i in range(len(js)):
+            stamp = LAB_EPOCH_NS + round(js.t[i] * 1e9)
+            msg = t[js_type](header=t["std_msgs/msg/Header"](
+                stamp=t["builtin_interfaces/msg/Time"](sec=stamp // 10**9,
+                                                       nanosec=stamp % 10**9), frame_id=""),
+                name=list(JOINT_NAMES), position=js.position[i], velocity=js.velocity[i],
+                effort=js.effort[i])
+            writer.write(conn, stamp, store.serialize_cdr(msg, js_type))
+    return path

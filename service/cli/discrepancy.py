@@ -19,7 +19,7 @@ def discrepancy(args: argparse.Namespace) -> int:
 
     meter = RunMeter()
     model = PhysicsModel.load(args.model)
-    js = read_measured(args.measured, args.format, args.rate)
+    js = read_measured(args.measured, args.format, args.rate, args.topic)
     start = time.perf_counter()
     res = run_discrepancy(model, js.t, js.position, js.velocity, js.effort, seed=args.seed)
     seconds = time.perf_counter() - start

@@ -14,7 +14,7 @@ def identify(args: argparse.Namespace) -> int:
     from wrenchd.models.identification.free_motion import identify_free_motion
     from wrenchd.models.physics.model import PhysicsModel
 
-    js = read_measured(args.measured, args.format, args.rate)
+    js = read_measured(args.measured, args.format, args.rate, args.topic)
     nominal = PhysicsModel.load(args.nominal) if args.nominal else None
     start = time.perf_counter()
     ident = identify_free_motion(js.t, js.position, js.velocity, js.effort, nominal,

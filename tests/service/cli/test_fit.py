@@ -12,10 +12,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from rosbags.rosbag2 import Writer
-from rosbags.typesys import Stores, get_typestore
 
-from tests.support import expect_line, free_port, stop_within, wait_for, write_config
+from tests.support import (LAB_EPOCH_NS, expect_line, free_port, ros2_bag_from, stop_within,
+                           wait_for, write_config)
 from wrenchd.adapters.csv_psm import read_wpi_csv
 from wrenchd.adapters.messages import decode_wrench, encode_joint_state
 from wrenchd.adapters.zenoh_io import ZenohConfig, open_session
@@ -23,26 +22,6 @@ from wrenchd.models.series import JOINT_NAMES
 from wrenchd.service.cli.echo import query_status
 
 CLI = [sys.executable, "-m", "wrenchd"]
-STORE = get_typestore(Stores.ROS2_HUMBLE)
-JS = "sensor_msgs/msg/JointState"
-EPOCH_NS = 1_764_000_000_000_000_000            # a lab's wall-clock stamps
-
-
-def _bag_from(js, path: Path, topic: str = "/PSM1/measured_js") -> Path:
-    """A rosbag2 directory (MCAP storage) written by rosbags alone, as a dVRK ROS 2 system
-    records ``measured_js``."""
-    t = STORE.types
-    with Writer(path, version=9) as writer:
-        conn = writer.add_connection(topic, JS, typestore=STORE)
-        for i in range(len(js)):
-            stamp = EPOCH_NS + round(js.t[i] * 1e9)
-            msg = t[JS](header=t["std_msgs/msg/Header"](
-                stamp=t["builtin_interfaces/msg/Time"](sec=stamp // 10**9,
-                                                       nanosec=stamp % 10**9), frame_id=""),
-                name=list(JOINT_NAMES), position=js.position[i], velocity=js.velocity[i],
-                effort=js.effort[i])
-            writer.write(conn, stamp, STORE.serialize_cdr(msg, JS))
-    return path
 
 
 def _run(*args, timeout: float = 240.0) -> subprocess.CompletedProcess:
@@ -53,7 +32,7 @@ def _run(*args, timeout: float = 240.0) -> subprocess.CompletedProcess:
 def bundle(wpi_data, tmp_path_factory) -> tuple[Path, dict]:
     root = tmp_path_factory.mktemp("fit")
     js, _ = read_wpi_csv(wpi_data / "one_no_weight.csv")
-    bag = _bag_from(js, root / "psm1_free_motion")
+    bag = ros2_bag_from(js, root / "psm1_free_motion")
     out = root / "psm1-bundle"
     done = _run("fit", str(bag), "-o", str(out), "--epochs", "30", "--json",
                 str(root / "fit.json"), "--quiet")
@@ -113,7 +92,7 @@ def test_serve_takes_the_bundle_and_says_where_it_came_from(bundle, wpi_data, tm
             delay = start + js.t[i] - time.monotonic()
             if delay > 0:
                 time.sleep(delay)
-            pub.put(encode_joint_state("json", EPOCH_NS + round(js.t[i] * 1e9), js.names,
+            pub.put(encode_joint_state("json", LAB_EPOCH_NS + round(js.t[i] * 1e9), js.names,
                                        js.position[i], js.velocity[i], js.effort[i]))
         wait_for(lambda: len(wrenches) >= n, 20.0, "a wrench per joint state")
         status = query_status(session, "dvrk/PSM1/wrenchd/status", 10.0)
@@ -135,7 +114,7 @@ def test_a_still_recording_is_refused(wpi_data, tmp_path):
     still = js.slice(0, 5999)
     still = type(still)(still.t, np.repeat(still.position[:1], len(still), 0),
                         np.zeros_like(still.velocity), still.effort)
-    done = _run("fit", str(_bag_from(still, tmp_path / "still")), "-o", str(tmp_path / "b"))
+    done = _run("fit", str(ros2_bag_from(still, tmp_path / "still")), "-o", str(tmp_path / "b"))
     assert done.returncode == 2, done.stderr
     assert "too little motion" in done.stderr and "Traceback" not in done.stderr
     assert not (tmp_path / "b").exists()
