@@ -172,6 +172,29 @@ class FreeMotionGate:
         self._seen = c.warmup_samples
         self._refresh()
 
+    def rescale(self, std: np.ndarray) -> None:
+        """Move a calibrated gate's scale to a known free-motion level, keeping its contact
+        state (a contact in progress goes on): the calibration guard follows the robust level
+        of the residual over its window this way. The scale may again grow ``max_growth``
+        times past ``std`` (floored by ``min_std``) by learning.
+
+        Raises:
+            DataError: ``std`` is not six finite values, or the gate is still warming up.
+        """
+        std = np.asarray(std, dtype=float)
+        if std.shape != (N_JOINTS,) or not np.isfinite(std).all():
+            raise DataError(f"a gate's scale needs {N_JOINTS} finite values, got {std!r}")
+        if not self.calibrated:
+            raise DataError("only a calibrated (warmed-up or seeded) gate can be rescaled")
+        rms = np.maximum(std, self._floor)
+        self._acc = [0.0] * N_JOINTS
+        self._n_acc = 0
+        for j in range(N_JOINTS):
+            self._msq[j] = stats.EWMean(fading_factor=self._block_fading)
+            self._msq[j].update(float(rms[j]) ** 2)
+            self._cap[j] = self.config.max_growth * float(rms[j])
+        self._refresh()
+
     @property
     def in_contact(self) -> bool:
         return self._in_contact

@@ -42,3 +42,23 @@ def test_seed_is_floored_and_checked():
         gate.seed(np.ones(5))
     with pytest.raises(DataError):
         gate.seed(np.array([np.nan, 1, 1, 1, 1, 1]))
+
+
+def test_rescale_moves_the_scale_and_keeps_a_contact_going():
+    gate = FreeMotionGate(GateConfig())
+    with pytest.raises(DataError):                   # a warming-up gate has no scale to move
+        gate.rescale(SCALE)
+    gate.seed(SCALE)
+    push = np.array([0.0, 0.0, 3.0, 0.0, 0.0, 0.0])      # 3 N along the shaft: 33 x its scale
+    decisions = _run(gate, np.tile(push, (40, 1)))
+    assert not decisions[-1].free
+    gate.rescale(2 * SCALE)
+    np.testing.assert_allclose(gate.bounds()[1], np.maximum(2 * SCALE, GateConfig().min_std))
+    assert gate.in_contact                            # the contact in progress goes on
+    after = gate.update(40, 0.2, push)
+    assert not after.free and after.contact_started == 0
+    # a level far above the push: the push now scores under the exit bound
+    gate.rescale(np.full(6, 10.0))
+    assert gate.update(41, 1.5, push).score < GateConfig().exit_sigma
+    with pytest.raises(DataError):
+        gate.rescale(np.ones(5))
