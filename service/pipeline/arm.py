@@ -15,10 +15,12 @@ Per sample:
 3. **gate**: :class:`FreeMotionGate` on the residual torque; the flag goes with the estimate.
    The first ``calibration_s`` of a session are the contact-free calibration of step 2 that
    the two-step paper assumes (the surgeon moves the instrument in the patient without
-   touching tissue): every sample is taken as free and trains the correction net eagerly;
+   touching tissue): the correction net trains eagerly;
    at its end the gate re-learns its bounds on the calibrated residual (``calibrated`` event).
    The contact-free assumption is checked, not trusted, by the calibration guard
-   (:mod:`wrenchd.service.pipeline.calibration`).
+   (:mod:`wrenchd.service.pipeline.calibration`): by default what it calls contact does not
+   train, it goes on judging through the gate's warm-up after the calibration, and it says
+   when the step-1 model does not fit the arm (``model_mismatch`` event, status).
 4. **train offer** (the policy, :class:`PolicyConfig`): with the ``gated`` policy a free
    sample waits ``release_delay_s`` in a delay line and reaches the adaptation only if no
    contact began meanwhile (a contact's onset, still under the gate's bound, is dropped with
@@ -87,6 +89,7 @@ class ArmPipeline:
         self._next_reset: float | None = None
         self._calibration_end: float | None = None
         self._was_contact = False
+        self._mismatch_said = False           # the model_mismatch event of this calibration
         self._last_setup: dict[str, Any] | None = None
         self.body_wall: list[float | None] = []    # stiffness per segment, the last round's
 
@@ -229,14 +232,18 @@ class ArmPipeline:
         self.counters.estimated += 1
         decision = self.gate.update(index, t, out.external_torque)
         calibrating = self._calibrating(t, events)
-        if calibrating:
-            decision = self._calibration_decision(index, t, out, msg.effort, decision.score)
+        # a refusing guard goes on judging while the gate re-learns its bounds after the
+        # calibration (its warm-up calls nothing free and would drop the delay line)
+        guarded = calibrating or (self._guard_refuses and not self.gate.calibrated)
+        if guarded:
+            decision = self._guard_decision(index, t, out, msg.effort, events, calibrating,
+                                            decision.score)
         if decision.recalibrated:
             events.append(Event(t, "gate_recalibrated", {"arm": self.arm,
                                                          "max_contact_s":
                                                          self.config.gate.max_contact_s}))
         self._contact_events(t, events)
-        if decision.free and not calibrating and self.drift.update(t, out.external_torque):
+        if decision.free and not guarded and self.drift.update(t, out.external_torque):
             self.counters.drifts += 1
             self._adapt_until = t + self.config.adaptation.eager_s
             events.append(Event(t, "drift", {"arm": self.arm,
@@ -250,20 +257,35 @@ class ArmPipeline:
                        decision.score, self.model_version, out.restarted)
         return est, events
 
-    def _calibration_decision(self, index: int, t: float, out, effort: np.ndarray,
-                              score: float) -> GateDecision:
-        """A calibration sample's verdict: the guard's (free unless there is no guard)."""
-        self.counters.calibration_samples += 1
-        if self.guard is None:
+    def _guard_decision(self, index: int, t: float, out, effort: np.ndarray,
+                        events: list[Event], calibrating: bool, score: float) -> GateDecision:
+        """The verdict of the calibration guard (free unless there is no guard) on a sample
+        of the calibration (counted) or of the gate's warm-up after it, with the gate's
+        ``score``; the first time in a calibration that the guard finds the step-1 model does
+        not fit, a ``model_mismatch`` event."""
+        if calibrating:
+            self.counters.calibration_samples += 1
+        guard = self.guard
+        if guard is None:
             return GateDecision(True, score, -1, trainable=True)
-        decision = self.guard.judge(index, t, effort - out.step1_torque, score)
-        if not self.guard.last_free:
+        decision = guard.judge(index, t, effort - out.step1_torque)._replace(score=score)
+        if calibrating and not guard.last_free:
             self.counters.calibration_contact += 1
+        if guard.mismatch and not self._mismatch_said:
+            self._mismatch_said = True
+            ratios = guard.ratios
+            events.append(Event(t, "model_mismatch", {
+                "arm": self.arm, "fit_ratio": float(ratios.max()),
+                "joint": int(np.argmax(ratios)), "fit_ratios": ratios.tolist(),
+                "threshold": self.config.calibration_guard.mismatch_ratio}))
         return decision
 
     def _calibrating(self, t: float, events: list[Event]) -> bool:
         if self._calibration_end is None:
             self._calibration_end = t + self.config.calibration_s
+            self._mismatch_said = False
+            if self.guard is not None:
+                self.guard.start()                      # a fresh window, the seeded scale
             if self.config.calibration_s > 0:
                 if self.backend is not None:
                     self.backend.drift(t)               # eager from the start
@@ -280,13 +302,20 @@ class ArmPipeline:
             events.append(Event(t, "calibrated", {"arm": self.arm,
                                                   "model_version": self.model_version,
                                                   "samples": c.calibration_samples,
-                                                  "contact": c.calibration_contact}))
+                                                  "contact": c.calibration_contact,
+                                                  **self._fit()}))
             if self.calibration_contaminated:
                 events.append(Event(t, "calibration_contaminated", {
                     "arm": self.arm, "samples": c.calibration_samples,
                     "contact": c.calibration_contact,
                     "fraction": c.calibration_contact / max(c.calibration_samples, 1)}))
         return False
+
+    def _fit(self) -> dict[str, Any]:
+        """The calibration guard's verdict on the step-1 model's fit (status and events)."""
+        guard = self.guard
+        return {"model_mismatch": guard is not None and guard.mismatch,
+                "fit_ratio": None if guard is None else guard.ratio}
 
     @property
     def calibration_contaminated(self) -> bool:
@@ -444,7 +473,7 @@ class ArmPipeline:
                          "calibration_samples": c.calibration_samples,
                          "calibration_contact": c.calibration_contact},
             "calibration": {"guard": self.guard is not None,
-                            "contaminated": self.calibration_contaminated},
+                            "contaminated": self.calibration_contaminated, **self._fit()},
             "gate": {"in_contact": self.gate.in_contact, "calibrated": self.gate.calibrated,
                      "contacts": self.gate.contacts, "mean": mean.tolist(),
                      "std": std.tolist()},

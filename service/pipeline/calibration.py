@@ -1,10 +1,24 @@
 """The check that the contact-free calibration at a session's start is contact-free.
 
 The step-1 residual (measured minus step-1 torque) does not change while the correction net
-calibrates, and the step-1 model's validation RMSE says how large it is in free motion; a
-contact adds ``J^T w`` on top. A :class:`FreeMotionGate` on that residual, seeded from the
-RMSE instead of a warm-up that could itself be spent in contact, judges from the first sample
-(:class:`~wrenchd.service.pipeline.config.CalibrationGuardConfig`).
+calibrates, and the step-1 model's held-out (validation) RMSE says how large it is in free
+motion; a contact adds ``J^T w`` on top. A :class:`FreeMotionGate` on that residual, seeded from
+the RMSE instead of a warm-up that could itself be spent in contact, judges from the first
+sample (:class:`~wrenchd.service.pipeline.config.CalibrationGuardConfig`).
+
+Robust statistics over the window follow: each second from 2 s into the window on, the
+residual's robust level per joint (1.4826 x the median absolute residual: a normal RMS
+that the contacts, as long as they fill less than half of the window, hardly move) sets the
+guard's scale to ``robust_factor`` x that level, never below the seeded scale and never above
+``max_growth`` x it. The model's **fit ratio** of a joint is the residual's lower-quartile
+level (the |residual| that three samples in four exceed, as a normal RMS) over its held-out
+RMSE (floored by the gate's ``min_std``), judged from 5 s into the window on: a misfit is
+in nearly every sample, a contact in some (the median would take a contact that fills more
+than half of the window's first seconds for a misfit; the lower quartile needs three
+quarters). Above ``mismatch_ratio`` on a joint, the step-1 model does not explain this arm
+there (a wrong checkpoint, a set-up it never saw). The guard says so (:attr:`CalibrationGuard.mismatch`) and that joint's scale
+follows the window's level without the bound, instead of the guard calling nearly every
+sample contact; the other joints, bounded as before, still see the contacts.
 """
 
 from __future__ import annotations
@@ -17,19 +31,34 @@ from wrenchd.models.gate import FreeMotionGate, GateDecision
 from wrenchd.models.series import N_JOINTS
 from wrenchd.service.pipeline.config import CalibrationGuardConfig, PipelineConfig
 
+#: the window's robust level is first used this long after the calibration's start, then
+#: recomputed this often [s]
+ROBUST_AFTER_S, ROBUST_EVERY_S = 2.0, 1.0
+#: the fit ratio is first judged this long after the calibration's start [s]
+MISMATCH_AFTER_S = 5.0
+#: median |x| of a zero-mean normal is 0.6745 sigma, its lower quartile 0.3186 sigma
+MAD_TO_RMS, Q25_TO_RMS = 1.4826, 1.0 / 0.31864
+
 
 class CalibrationGuard:
     """A gate on the step-1 residual during the calibration.
 
     Args:
-        gate: the seeded gate.
+        gate: the gate (seeded by :meth:`start`).
         config: the guard's settings (``action``: warn or refuse).
+        heldout: (6,) free-motion RMS of the step-1 residual [N m; N on insertion]: the
+            step-1 checkpoint's validation RMSE, or ``config.residual_scale``.
     """
 
-    def __init__(self, gate: FreeMotionGate, config: CalibrationGuardConfig) -> None:
+    def __init__(self, gate: FreeMotionGate, config: CalibrationGuardConfig,
+                 heldout: np.ndarray) -> None:
         self.gate, self.config = gate, config
         self.refuses = config.action == "refuse"
-        self.last_free = True            # the verdict on the last sample judged
+        # the fit ratio's unit: the held-out RMSE, floored as the gate floors its scale
+        self.heldout = np.maximum(np.asarray(heldout, dtype=float),
+                                  np.asarray(gate.config.min_std, dtype=float))
+        self.seed_scale = config.scale_factor * np.asarray(heldout, dtype=float)
+        self.start()
 
     @classmethod
     def build(cls, config: PipelineConfig, free_space: FreeSpaceModel) -> CalibrationGuard | None:
@@ -47,17 +76,57 @@ class CalibrationGuard:
         if len(scale) != N_JOINTS:
             raise ConfigError(f"calibration_guard.residual_scale needs {N_JOINTS} values, "
                               f"got {len(scale)}")
-        gate = FreeMotionGate(config.gate)
-        gate.seed(g.scale_factor * np.asarray(scale, dtype=float))
-        return cls(gate, g)
+        return cls(FreeMotionGate(config.gate), g, np.asarray(scale, dtype=float))
 
-    def judge(self, index: int, t: float, residual: np.ndarray, score: float) -> GateDecision:
-        """The verdict on one calibration sample from its step-1 residual (6,) [N m; N];
-        ``score`` is the main gate's and stays in the decision. With ``action: warn`` every
-        sample stays free and trainable (the guard only counts, in :attr:`last_free`)."""
+    def start(self) -> None:
+        """A new calibration: the seeded scale, an empty window, no verdict on the fit."""
+        self.gate.seed(self.seed_scale)
+        self.last_free = True            # the verdict on the last sample judged
+        self.ratios: np.ndarray | None = None     # (6,) fit ratio per joint, once judged
+        self.mismatch = False
+        self._window = np.empty((1024, N_JOINTS))
+        self._n = 0
+        self._t0: float | None = None
+        self._next_t = 0.0
+
+    @property
+    def ratio(self) -> float | None:
+        """The largest per-joint fit ratio (None before it is judged)."""
+        return None if self.ratios is None else float(self.ratios.max())
+
+    def _remember(self, t: float, residual: np.ndarray) -> None:
+        if self._n == len(self._window):
+            self._window = np.concatenate([self._window, np.empty_like(self._window)])
+        self._window[self._n] = np.abs(residual)
+        self._n += 1
+        if self._t0 is None:
+            self._t0 = t
+            self._next_t = t + ROBUST_AFTER_S
+        elif t >= self._next_t:
+            self._next_t = t + ROBUST_EVERY_S
+            self._follow_level(t - self._t0)
+
+    def _follow_level(self, elapsed_s: float) -> None:
+        """Set the gate's scale from the window's robust level; judge the fit."""
+        q25, median = np.quantile(self._window[:self._n], (0.25, 0.5), axis=0)
+        level = MAD_TO_RMS * median
+        if elapsed_s >= MISMATCH_AFTER_S:
+            self.ratios = Q25_TO_RMS * q25 / self.heldout
+            self.mismatch = bool(self.ratios.max() > self.config.mismatch_ratio)
+        scale = np.maximum(self.config.robust_factor * level, self.seed_scale)
+        bounded = np.minimum(scale, self.gate.config.max_growth * self.seed_scale)
+        if self.ratios is not None:         # a joint the model does not fit: its own level
+            bounded = np.where(self.ratios > self.config.mismatch_ratio, scale, bounded)
+        self.gate.rescale(bounded)
+
+    def judge(self, index: int, t: float, residual: np.ndarray) -> GateDecision:
+        """The verdict on one sample from its step-1 residual (6,) [N m; N], with the guard's
+        peak score. With ``action: warn`` every sample stays free and trainable (the guard
+        only counts, in :attr:`last_free`)."""
+        self._remember(t, residual)
         g = self.gate.update(index, t, residual)
         self.last_free = g.free
         if not self.refuses:
-            return GateDecision(True, score, -1, trainable=True)
+            return GateDecision(True, g.score, -1, trainable=True)
         trainable = g.free if self.config.borderline_trains else g.trainable
-        return GateDecision(g.free, score, g.contact_started, trainable=trainable)
+        return GateDecision(g.free, g.score, g.contact_started, trainable=trainable)

@@ -57,27 +57,31 @@ class PolicyConfig(BaseModel):
 
 
 class CalibrationGuardConfig(BaseModel):
-    """The check that the calibration is contact-free (see :class:`ArmPipeline`).
+    """The check that the calibration is contact-free (see :class:`ArmPipeline` and
+    :mod:`wrenchd.service.pipeline.calibration`).
 
     The step-1 residual (measured minus step-1 torque) does not change while the correction
-    net calibrates, and the step-1 model's validation RMSE says how large it is in free
-    motion; a contact adds ``J^T w`` on top. So a :class:`FreeMotionGate` on it, seeded with
-    ``scale_factor`` x that RMSE instead of a warm-up (a warm-up could itself be spent in
+    net calibrates, and the step-1 model's held-out (validation) RMSE says how large it is in
+    free motion; a contact adds ``J^T w`` on top. So a :class:`FreeMotionGate` on it, seeded
+    with ``scale_factor`` x that RMSE instead of a warm-up (a warm-up could itself be spent in
     contact: a contact may begin within a session's first seconds), can judge from the first
-    sample. It counts the samples it calls contact and warns (``action: warn``), or keeps
-    them out of training through the gated phase's delay line (``action: refuse``).
+    sample; from 2 s into the window on, its scale follows ``robust_factor`` x the robust
+    level of the window's residual (within ``max_growth`` x the seeded scale on the joints
+    the model fits). It keeps what it calls contact out of training through the gated phase's
+    delay line (``action: refuse``), or only counts and warns (``action: warn``). A
+    joint whose lower-quartile residual level is over ``mismatch_ratio`` x its held-out RMSE
+    says the model does not fit the arm (a ``model_mismatch`` event and the status).
     """
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     enabled: bool = Field(default=True, description="judge the calibration's samples")
     action: Literal["warn", "refuse"] = Field(
-        default="warn",
-        description="warn: every calibration sample trains, the guard only counts and "
-                    "warns; refuse: what the guard calls contact does not train (a slightly "
-                    "worse calibration on contact-free sessions: docs/architecture.md); "
-                    "refuse also publishes the guard's free flag during the calibration "
-                    "(warn: all free)")
+        default="refuse",
+        description="refuse: what the guard calls contact does not train (nor do the "
+                    "samples the delay line drops around it), and the guard's free flag is "
+                    "published during the calibration; warn: every calibration sample "
+                    "trains, contact included, the guard only counts and warns (all free)")
     residual_scale: tuple[float, ...] | None = Field(
         default=None,
         description="free-motion RMS of the step-1 residual per joint [N m; N on insertion]; "
@@ -87,6 +91,17 @@ class CalibrationGuardConfig(BaseModel):
         description="the guard starts from this x residual_scale (a set-up adds residual the "
                     "step-1 validation did not have: at 1.0 the guard calls much of a "
                     "contact-free calibration contact)")
+    robust_factor: float = Field(
+        default=1.5, gt=0.0,
+        description="the guard's scale follows this x the window's robust residual level "
+                    "(1.4826 x the median |residual| per joint), not below the seeded scale")
+    mismatch_ratio: float = Field(
+        default=15.0, gt=1.0,
+        description="a joint whose lower-quartile residual level over the calibration window "
+                    "(as a normal RMS) is more than this x its held-out RMSE (floored by the "
+                    "gate's min_std): the step-1 model does not fit the arm there "
+                    "('model_mismatch' event, status), and the guard's scale on that joint "
+                    "follows the window's level")
     borderline_trains: bool = Field(
         default=True,
         description="refuse: a sample the guard calls free but over the gate's train_sigma "
