@@ -16,7 +16,11 @@ process, :mod:`wrenchd.service.runtime.worker`) and by replay (inline, in simula
 * :meth:`Adapter.on_drift` makes adaptation eager for ``eager_s``: rounds come more often and
   the held-out set restarts with samples after the drift (the old regime is no longer what
   "recent" means). The reservoir is kept: emptying it, and re-learning the gate's scale, makes
-  the insufflation recovery worse and lets more contact through.
+  the insufflation recovery worse and lets more contact through. With ``drift_carry_over``
+  (the default) a drift is also taken for an unannounced pressure change at its detection
+  (less ``drift_lead_s``), and the buffer is carried over as below: the body wall tracker
+  measures the stiffness on either side, so a drift that changed nothing shifts the rows by
+  about nothing.
 * :meth:`Adapter.on_setup_change` is told of a set-up change (the daemon's ``setup`` key):
   adaptation gets eager as after a drift, and the buffer is *carried over*: the body wall's
   stiffness is tracked per bin of sample time on the offered samples
@@ -248,6 +252,11 @@ class Adapter:
         self._eager_until = t + self.config.eager_s
         self._next_round = t
         self._holdout.clear()
+        if self.config.drift_carry_over and self.config.body_wall.enabled:
+            starts = self.body_wall.starts
+            onset = t - self.config.drift_lead_s
+            if not starts or onset > starts[-1]:
+                self.body_wall.announce(onset)
 
     @property
     def holdout(self) -> np.ndarray:

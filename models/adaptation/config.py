@@ -45,6 +45,14 @@ class AdaptationConfig(BaseModel):
         description="ridge weight of the output-layer refit on the recent ring, towards the "
                     "current weights, as a multiple of the mean diagonal of the hidden "
                     "features' Gram matrix [-]; 0 = no refit (module docstring)")
+    drift_carry_over: bool = Field(
+        default=True,
+        description="a detected drift also carries the buffer over as an announced pressure "
+                    "change does, the change taken at the detection minus drift_lead_s "
+                    "(recovery from the data alone: docs/results.md)")
+    drift_lead_s: float = Field(default=0.0, ge=0.0,
+                                description="how long before its detection a drift is taken "
+                                            "to have begun [s]")
     seed: int = 0
     body_wall: BodyWallTrackerConfig = Field(
         default_factory=BodyWallTrackerConfig,

@@ -264,3 +264,34 @@ def test_a_restarted_clock_keeps_what_was_carried_and_starts_the_tracker_afresh(
     # the rows left from before the restart are exactly as they were carried
     old_rows = {row.tobytes() for row in carried}
     assert all(row.tobytes() in old_rows for row in ring.rows[:ring.n][kept])
+
+
+def test_a_detected_drift_carries_the_buffer_over_when_asked():
+    """The pressure step of the announced case, but told only by a drift detection 2 s after
+    it: with ``drift_carry_over`` (and ``drift_lead_s`` = 2) the old rows move as after an
+    announcement; without, the drift leaves the buffer as it was."""
+    rate = 100.0
+    t = np.arange(0, 90.0, 1 / rate)
+    windows, step1, measured, *_ = wall_samples(t, np.where(t < 60.0, 12.0, 20.0))
+    shifts = {}
+    for carry in (False, True):
+        config = AdaptationConfig(min_train_samples=100, round_steps=2, recent_size=2000,
+                                  reservoir_size=2000, drift_carry_over=carry,
+                                  drift_lead_s=2.0)
+        adapter = Adapter(config)
+        seen = t < 62.0
+        adapter.add(windows[seen], step1[seen], measured[seen], t[seen])
+        adapter.on_drift(62.0)
+        adapter.add(windows[~seen], step1[~seen], measured[~seen], t[~seen])
+        adapter.round(90.0)
+        rings = (adapter.recent, adapter.reservoir)
+        shifts[carry] = (np.concatenate([r.shift[:r.n] for r in rings]),
+                         np.concatenate([r.stamp[:r.n] for r in rings]),
+                         adapter.body_wall.starts)
+    shift, stamp, starts = shifts[True]
+    assert starts == [60.0]
+    old = stamp < 60.0
+    assert old.any() and np.all(shift[old] > 200.0), shift[old]    # k 580 -> 900 N/m
+    assert not shift[stamp >= 62.0].any()
+    shift, _, starts = shifts[False]
+    assert starts == [] and not shift.any()
