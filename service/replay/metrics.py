@@ -8,7 +8,10 @@ norm), torques ``|T_est - T_ref|`` [N m]. References: the simulator's true tip w
 * ``false_force_N``: mean and 95th percentile of the estimated force when the arm is truly
   in free motion (the true wrench is then zero).
 * gate ``precision`` / ``recall`` of "contact" against the true ``in_contact``, after the
-  pipeline's calibration period (when the gate is not used).
+  pipeline's calibration period (when the gate is not used); ``gate_episodes`` scores the
+  same flags on contact episodes whose true force peaks above ``EPISODE_MIN_N`` only,
+  leaving out ``EPISODE_MARGIN_S`` around every onset and release (where the force is near
+  zero whatever the label says) and the samples of weaker episodes.
 * ``contamination``: offered training samples that were truly in contact (all, and those
   offered after the calibration, which trains on every sample by design).
 * drift: for each set-up change the session announces (a step, or a ramp's start), the free-
@@ -27,6 +30,52 @@ from wrenchd.service.replay.loop import ReplayResult
 from wrenchd.models.physics.effects.drift import drift_onsets
 
 PRE_S, ROLL_S, RECOVER_FRACTION = 30.0, 5.0, 0.10
+#: ``gate_episodes``: contact episodes count above this peak true force [N]; this long
+#: around each onset and release is not scored [s]
+EPISODE_MIN_N, EPISODE_MARGIN_S = 1.0, 0.1
+
+
+def episode_scoring(t: np.ndarray, contact: np.ndarray, force_n: np.ndarray,
+                    min_peak_n: float = EPISODE_MIN_N, margin_s: float = EPISODE_MARGIN_S
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """Which samples a contact detector is scored on, and their labels.
+
+    Args:
+        t: (N,) sample times [s], increasing.
+        contact: (N,) true contact flags.
+        force_n: (N,) true tip force magnitude [N].
+
+    Returns:
+        ``scored`` (N,) bool: free samples and samples of episodes peaking above
+        ``min_peak_n``, except within ``margin_s`` of any onset or release; ``label`` (N,)
+        bool: in such an episode.
+    """
+    contact = np.asarray(contact, dtype=bool)
+    edges = np.flatnonzero(np.diff(contact.astype(np.int8))) + 1
+    starts = np.r_[0, edges]
+    stops = np.r_[edges, len(contact)]
+    scored = np.ones(len(contact), dtype=bool)
+    for a, b in zip(starts, stops):
+        if contact[a] and not force_n[a:b].max(initial=0.0) > min_peak_n:
+            scored[a:b] = False                              # a weak episode: not scored
+    for e in edges:                                          # onsets and releases
+        scored[np.abs(t - t[e]) <= margin_s + 1e-9] = False
+    return scored, contact & scored
+
+
+def episode_gate_scores(t: np.ndarray, contact: np.ndarray, force_n: np.ndarray,
+                        flagged: np.ndarray, judged: np.ndarray) -> dict[str, Any]:
+    """Precision and recall of the (N,) ``flagged`` contact samples on the samples
+    :func:`episode_scoring` scores among the (N,) ``judged`` ones (after the calibration)."""
+    scored, label = episode_scoring(t, contact, force_n)
+    scored &= judged
+    label &= judged
+    said = flagged & scored
+    tp = int(np.sum(said & label))
+    return {"precision": tp / int(said.sum()) if said.any() else None,
+            "recall": tp / int(label.sum()) if label.any() else None,
+            "scored": int(scored.sum()), "min_peak_N": EPISODE_MIN_N,
+            "margin_s": EPISODE_MARGIN_S}
 
 
 def _rms(x: np.ndarray) -> float | None:
@@ -150,6 +199,9 @@ def replay_metrics(r: ReplayResult, session: Session) -> dict[str, Any]:
     m["gate"] = {"precision": tp / int(est_contact.sum()) if est_contact.any() else None,
                  "recall": tp / int(true_contact.sum()) if true_contact.any() else None,
                  "after_s": t0 + calib}
+    m["gate_episodes"] = episode_gate_scores(
+        r.t, contact, np.linalg.norm(truth.external_wrench[r.sample, :3], axis=1), ~r.free,
+        after)
     if len(r.offered_t):
         pos = np.clip(np.searchsorted(session.joint_states.t, r.offered_t), 0,
                       len(truth) - 1)
@@ -197,7 +249,11 @@ def metrics_markdown(m: dict[str, Any]) -> str:
         lines += ["", f"- false force in free motion: mean {_f(m['false_force_N']['mean'])} N, "
                   f"p95 {_f(m['false_force_N']['p95'])} N",
                   f"- gate (after {g['after_s']:.0f} s): precision {_f(g['precision'])}, "
-                  f"recall {_f(g['recall'])}",
+                  f"recall {_f(g['recall'])}; on episodes above "
+                  f"{m['gate_episodes']['min_peak_N']:g} N, {m['gate_episodes']['margin_s']:g} s "
+                  f"around onsets and releases left out: precision "
+                  f"{_f(m['gate_episodes']['precision'])}, recall "
+                  f"{_f(m['gate_episodes']['recall'])}",
                   f"- training contamination: {c['in_contact']} of {c['offered']} offered "
                   f"samples were in contact ({_f(c['fraction'])}), "
                   f"{c['in_contact_after_calibration']} of them after the calibration"]
