@@ -253,10 +253,18 @@ class Adapter:
         self._next_round = t
         self._holdout.clear()
         if self.config.drift_carry_over and self.config.body_wall.enabled:
-            starts = self.body_wall.starts
-            onset = t - self.config.drift_lead_s
-            if not starts or onset > starts[-1]:
-                self.body_wall.announce(onset)
+            self._carry_over_drift(t - self.config.drift_lead_s)
+
+    def _carry_over_drift(self, onset: float) -> None:
+        """Take a drift for an unannounced change at ``onset`` [s], unless there is nothing
+        to carry (no sample yet: the pipeline's eager start) or a change was taken less than
+        ``eager_s`` before it (the drift is that change, announced or detected)."""
+        if self.body_wall.latest == -np.inf:
+            return
+        starts = self.body_wall.starts
+        if starts and onset - starts[-1] < self.config.eager_s:
+            return
+        self.body_wall.announce(onset)
 
     @property
     def holdout(self) -> np.ndarray:

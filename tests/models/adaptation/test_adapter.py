@@ -295,3 +295,19 @@ def test_a_detected_drift_carries_the_buffer_over_when_asked():
     assert not shift[stamp >= 62.0].any()
     shift, _, starts = shifts[False]
     assert starts == [] and not shift.any()
+
+
+def test_a_drift_with_nothing_to_carry_or_just_after_a_change_starts_no_segment():
+    rate = 100.0
+    t = np.arange(0, 90.0, 1 / rate)
+    windows, step1, measured, *_ = wall_samples(t, np.where(t < 60.0, 12.0, 20.0))
+    adapter = Adapter(AdaptationConfig(min_train_samples=100, round_steps=2))
+    adapter.on_drift(0.0)                    # the pipeline's eager start: no sample yet
+    assert adapter.body_wall.starts == []
+    seen = t < 62.0
+    adapter.add(windows[seen], step1[seen], measured[seen], t[seen])
+    adapter.on_setup_change(60.0)            # announced ...
+    adapter.on_drift(62.0)                   # ... and then detected: the same change
+    assert adapter.body_wall.starts == [60.0]
+    adapter.on_drift(95.0)                   # a later drift is a change of its own
+    assert adapter.body_wall.starts == [60.0, 95.0]
