@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 from wrenchd.models.series import JOINT_NAMES
+from wrenchd.service.studies.real_data import lookahead_key
 
 UNITS = ("N m", "N m", "N", "N m", "N m", "N m")
 #: Result keys, their column titles, in table order.
@@ -13,25 +15,19 @@ COLUMNS = (("lstm", "paper LSTM"), ("ls_plain", "LS first (sign, offline)"),
            ("ls", "LS (offline)"), ("ls_causal", "LS causal (hybrid's physics)"),
            ("hybrid", "hybrid"), ("hybrid_ungated", "hybrid, no trust gate"),
            ("lstm_residual", "physics + LSTM residual"))
-#: Result keys of the hybrids with a look-ahead start with this (``hybrid_lookahead_10ms``).
-LOOKAHEAD_PREFIX = "hybrid_lookahead_"
 
 
 def _f(x: float | None) -> str:
     return "-" if x is None else f"{x:.4f}"
 
 
-def _lookahead_columns(d: dict[str, Any]) -> list[tuple[str, str]]:
-    """The hybrids with a look-ahead in ``d``: (key, title), shortest look-ahead first."""
-    keys = [k[:-len("_rmse")] for k in d
-            if k.startswith(LOOKAHEAD_PREFIX) and k.endswith("ms_rmse")]
-    ms = {k: float(k[len(LOOKAHEAD_PREFIX):-2]) for k in keys}
-    return [(k, f"hybrid, {ms[k]:g} ms ahead (offline)") for k in sorted(keys, key=ms.get)]
-
-
-def rmse_table(d: dict[str, Any], floor: list[float] | None = None) -> list[str]:
-    """Per-joint RMSE of every model present in ``d``, with hybrid / LS and the floor."""
-    cols = [(k, t) for k, t in COLUMNS if f"{k}_rmse" in d] + _lookahead_columns(d)
+def rmse_table(d: dict[str, Any], floor: list[float] | None = None,
+               lookahead_ms: Sequence[float] = ()) -> list[str]:
+    """Per-joint RMSE of every model present in ``d`` (the hybrids reading ``lookahead_ms``
+    ahead too), with hybrid / LS and the floor."""
+    cols = [(k, t) for k, t in COLUMNS if f"{k}_rmse" in d]
+    cols += [(lookahead_key(ms), f"hybrid, {ms:g} ms ahead (offline)")
+             for ms in sorted(lookahead_ms) if f"{lookahead_key(ms)}_rmse" in d]
     ratios = ([(k, "hybrid / LS" if k == "hybrid" else t.split(" (")[0] + " / LS")
                for k, t in cols if k.startswith("hybrid") and k != "hybrid_ungated"]
               if "ls_rmse" in d else [])
@@ -132,7 +128,8 @@ def markdown(r: dict[str, Any], command: str) -> str:
     lines.append("")
     rep = r["test_file"].get("repeatability")
     lines += ["## Test: torque RMSE per joint\n"]
-    lines += rmse_table(r["test_file"], rep["floor_rmse"] if rep else None)
+    ahead = r.get("lookahead_ms", ())
+    lines += rmse_table(r["test_file"], rep["floor_rmse"] if rep else None, ahead)
     if rep:
         lines += [f"Repeatability: the test trajectory repeats every {rep['period_s']:.2f} s "
                   f"(positions within {rep['position_rms'] * 1000:.1f} mrad RMS); the floor is "
@@ -142,7 +139,7 @@ def markdown(r: dict[str, Any], command: str) -> str:
     if "coverage" in r["test_file"]:
         lines += coverage_section(r["test_file"]["coverage"])
     lines += ["## Training samples (fit): torque RMSE per joint\n"]
-    lines += rmse_table(r["train_file"])
+    lines += rmse_table(r["train_file"], lookahead_ms=ahead)
     if "loads" in r:
         lines += loads_section(r["loads"])
     return "\n".join(lines)
