@@ -27,6 +27,10 @@ key). Finding it from the series alone does not work: bins vary with the workspa
 much as the step, so a search for it raises false alarms on unchanged sessions and finds real
 changes tens of seconds late.
 
+Samples are kept as they come and binned in batches (:data:`FLUSH_ROWS`, and before anything
+reads or changes the bins): the pipeline offers a few rows at a time, and the body wall's
+regressors cost about as much for three rows as for a thousand.
+
 A notice should come before the samples after its time reach the tracker (the pipeline's
 delay line gives it a few seconds). One that comes later, or stamped in the past, drops the
 old segment's bins that reach past its time (they mixed the two set-ups); a notice older than
@@ -51,8 +55,10 @@ from wrenchd.models.physics.effects.base import Motion
 from wrenchd.models.physics.effects.body_wall import BodyWall, BodyWallParams
 
 #: joints the body wall acts on (0-based): outer yaw and pitch
-WALL_JOINTS = (0, 1)
+WALL_JOINTS = (0, 1)             # adjacent: the adapter takes them as a slice
 _N_COLS = 4                      # stiffness, damping, offset yaw, offset pitch
+#: samples kept before they are binned (module docstring)
+FLUSH_ROWS = 2048
 
 
 class BodyWallTrackerConfig(BaseModel):
@@ -95,12 +101,20 @@ class BodyWallTracker:
         self.config = config if config is not None else BodyWallTrackerConfig()
         self.starts: list[float] = []                       # announced changes [s], sorted
         self._open: dict[tuple[int, int], list] = {}        # (segment, bin) -> [A, b, n]
-        self.bins: list[tuple[float, int, float, int]] = []  # (bin start [s], segment, k, n)
+        self._bins: list[tuple[float, int, float, int]] = []  # (bin start [s], segment, k, n)
         # per segment, the bins' information on (k, c) with their offsets eliminated, and
         # per closed bin what it added (a late notice takes it back out)
         self._pooled: dict[int, list[np.ndarray]] = {}       # segment -> [S (2, 2), r (2,)]
         self._reduced: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
         self._latest = -math.inf
+        self._pending: list[tuple[np.ndarray, ...]] = []    # added, not binned yet
+        self._pending_n = 0
+
+    @property
+    def bins(self) -> list[tuple[float, int, float, int]]:
+        """Closed bins: ``(bin start [s], segment, stiffness [N/m], samples)`` each."""
+        self._flush()
+        return self._bins
 
     @property
     def latest(self) -> float:
@@ -117,19 +131,36 @@ class BodyWallTracker:
     def add(self, t: np.ndarray, q: np.ndarray, dq: np.ndarray,
             residual: np.ndarray) -> None:
         """Free-motion samples: times (N,) [s], positions and velocities (N, 6), step-1
-        residual torques of yaw and pitch (N, 2) [N m]. Samples without a finite time are
-        ignored.
+        residual torques of yaw and pitch (N, 2) [N m] (copied). Samples without a finite
+        time, position, velocity or residual are ignored (when they are binned; :attr:`latest`
+        counts every finite time).
 
         Raises:
             DataError: shapes that do not match.
         """
-        t = np.asarray(t, dtype=np.float64).reshape(-1)
-        q, dq = np.asarray(q, np.float64), np.asarray(dq, np.float64)
-        residual = np.asarray(residual, np.float64)
+        t = np.array(t, dtype=np.float64).reshape(-1)
+        q, dq = np.array(q, np.float64), np.array(dq, np.float64)
+        residual = np.array(residual, np.float64)
         n = len(t)
         if q.shape != (n, 6) or dq.shape != (n, 6) or residual.shape != (n, 2):
             raise DataError(f"body wall tracker: expected (N,), (N, 6), (N, 6), (N, 2), got "
                             f"{t.shape}, {q.shape}, {dq.shape}, {residual.shape}")
+        if n == 0:
+            return
+        latest = float(np.fmax.reduce(t))                     # NaN only if every time is
+        if latest > self._latest:
+            self._latest = latest
+        self._pending.append((t, q, dq, residual))
+        self._pending_n += n
+        if self._pending_n >= FLUSH_ROWS:
+            self._flush()
+
+    def _flush(self) -> None:
+        """Bin the samples kept since the last flush and close the bins they complete."""
+        if not self._pending:
+            return
+        t, q, dq, residual = (np.concatenate(parts) for parts in zip(*self._pending))
+        self._pending, self._pending_n = [], 0
         ok = np.isfinite(t) & np.isfinite(residual).all(axis=1) & np.isfinite(q).all(axis=1) \
             & np.isfinite(dq).all(axis=1)
         if not ok.all():
@@ -151,7 +182,6 @@ class BodyWallTracker:
             acc[0] += x.T @ x
             acc[1] += x.T @ residual[m].reshape(-1)
             acc[2] += k
-        self._latest = max(self._latest, float(t.max()))
         self._close(self._latest)
 
     def _origin(self, seg: np.ndarray) -> np.ndarray:
@@ -169,6 +199,7 @@ class BodyWallTracker:
         if not math.isfinite(t):
             raise DataError(f"a set-up change needs a finite time, got {t!r}")
         t = float(t)
+        self._flush()                   # the samples so far were added before the notice
         old = int(self.segment_of(np.array([t]))[0])     # the segment it splits
         # Samples are binned by the segments known when they arrive. A notice that comes after
         # samples past its time were added (later than the pipeline's delay line, or stamped
@@ -186,7 +217,7 @@ class BodyWallTracker:
             self._pooled[old][0] -= info
             self._pooled[old][1] -= rhs
         if mixed:
-            self.bins = [b for b in self.bins if not (b[1] == old and b[0] + self.config.bin_s
+            self._bins = [b for b in self._bins if not (b[1] == old and b[0] + self.config.bin_s
                                                       > t)]
             if not any(key[0] == old for key in self._reduced):
                 del self._pooled[old]
@@ -196,7 +227,7 @@ class BodyWallTracker:
         self._open = {(up(s), b): v for (s, b), v in self._open.items()}
         self._reduced = {(up(s), b): v for (s, b), v in self._reduced.items()}
         self._pooled = {up(s): v for s, v in self._pooled.items()}
-        self.bins = [(b, up(s), k, n) for b, s, k, n in self.bins]
+        self._bins = [(b, up(s), k, n) for b, s, k, n in self._bins]
         self.starts.insert(bisect_right(self.starts, t), t)
 
     # -- output --------------------------------------------------------------------------
@@ -221,7 +252,7 @@ class BodyWallTracker:
             if not np.isfinite(coef).all():
                 continue
             start = float(self._origin(np.array([key[0]]))[0]) + key[1] * c.bin_s
-            self.bins.append((start, key[0], float(coef[0]), n))
+            self._bins.append((start, key[0], float(coef[0]), n))
             info, rhs = a[:2, :2] - gain @ a[2:, :2], v[:2] - gain @ v[2:]
             self._reduced[key] = (info, rhs)
             pooled = self._pooled.setdefault(key[0], [np.zeros((2, 2)), np.zeros(2)])
@@ -232,6 +263,7 @@ class BodyWallTracker:
         """Stiffness [N/m] of a segment: one least-squares fit over its closed bins, stiffness
         and damping shared, yaw and pitch offsets per bin (a bin that saw little motion, or
         little of it free, weighs little); None before its first bin."""
+        self._flush()
         pooled = self._pooled.get(segment)
         if pooled is None:
             return None

@@ -167,12 +167,12 @@ class Adapter:
         """The body wall tracker's share of offered rows: their step-1 residual on the wall's
         joints. Times that go back by more than two bins are a new timeline (the robot's clock
         restarted: the pipeline's ``clock_reset``): see :meth:`_new_timeline`."""
-        finite = stamps[np.isfinite(stamps)]
-        if len(finite) and finite.min() < self.body_wall.latest - 2 * self.body_wall.config.bin_s:
+        earliest = np.fmin.reduce(stamps)                     # NaN only if every time is
+        if earliest < self.body_wall.latest - 2 * self.body_wall.config.bin_s:
             self._new_timeline()
         k = self.config.window * 12
-        cols = list(WALL_JOINTS)
-        residual = rows[:, k + N_JOINTS:][:, cols] - rows[:, k:k + N_JOINTS][:, cols]
+        a, b = WALL_JOINTS[0], WALL_JOINTS[-1] + 1          # adjacent joints: slices
+        residual = rows[:, k + N_JOINTS + a:k + N_JOINTS + b] - rows[:, k + a:k + b]
         self.body_wall.add(stamps, *self._positions(rows), residual)
 
     def _new_timeline(self) -> None:
@@ -320,6 +320,11 @@ class Adapter:
         if self._next_round is None:
             self._next_round = t
         return t >= self._next_round
+
+    def may_be_due(self, t: float) -> bool:
+        """False when no round can be due at ``t`` [s], whatever samples come before it: a
+        cheap test that lets a caller skip :meth:`round` calls (:meth:`due` decides)."""
+        return self.config.enabled and (self._next_round is None or t >= self._next_round)
 
     def _needed(self) -> int:
         return self.config.min_train_samples if self.corr is None else 32

@@ -53,6 +53,13 @@ class AdapterHost:
     def arms(self) -> list[str]:
         return list(self.adapters)
 
+    def idle_tick(self, arm: str, now: float) -> bool:
+        """Whether a ``"tick"`` at ``now`` would do nothing, however many samples came before
+        it (no round can be due and no failure is injected): the caller may skip it and add
+        those samples later, in one call."""
+        adapter = self.adapters.get(arm)
+        return adapter is None or (arm not in self._fail_next and not adapter.may_be_due(now))
+
     def call(self, arm: str, kind: str, now: float, payload: Any = None) -> RoundResult | None:
         """Apply one call at ``now`` [s, the caller's clock]; a round's result for ``tick``.
 

@@ -48,18 +48,22 @@ def _serve(conn, config: dict[str, Any], normalisation: dict[str, np.ndarray] | 
                 return
             rows, stamps, kinds, times, counts, tail = chunk
             done = -np.inf
-            a = 0
+            a = n = 0               # rows[a:a + n]: offered, not added yet
             for kind, t, count in zip(kinds, times, counts):
-                if count:               # the rows offered before this call, in one add
-                    host.call(ARM, "rows", t, (rows[a:a + count], stamps[a:a + count]))
-                    a += count
+                n += count
+                if kind == "tick" and host.idle_tick(ARM, t):
+                    done = t        # nothing due: its rows go in with the next call's
+                    continue
+                if n:               # the rows offered before this call, in one add
+                    host.call(ARM, "rows", t, (rows[a:a + n], stamps[a:a + n]))
+                    a, n = a + n, 0
                 result = host.call(ARM, kind, t, t)      # a set-up change's time is its own
                 if kind == "tick":
                     done = t
                     if result is not None:   # at once: the pipeline may be waiting for it
                         conn.send(("round", done, [result]))
-            if tail:
-                host.call(ARM, "rows", done, (rows[a:a + tail], stamps[a:a + tail]))
+            if n + tail:
+                host.call(ARM, "rows", done, (rows[a:a + n + tail], stamps[a:a + n + tail]))
             conn.send(("chunk", done, []))
     except Exception:  # noqa: BLE001 - reported to the pipeline, which raises it
         conn.send(("error", traceback.format_exc(limit=8), []))

@@ -160,3 +160,24 @@ def test_bad_input_is_refused():
         tracker.announce(float("nan"))
     with pytest.raises(ValueError):
         BodyWallTrackerConfig(bin_s=0.0)
+
+
+def test_binning_does_not_depend_on_how_samples_arrive():
+    """Three rows at a time (as the pipeline offers) or all at once: the same bins and
+    stiffnesses to rounding, and a notice after samples bins the earlier ones first."""
+    t, q, dq = motion(200 * 90)
+    tau = np.where((t < 60.0)[:, None], wall_torque(q, dq, 12.0), wall_torque(q, dq, 20.0))
+    whole, pieces = BodyWallTracker(), BodyWallTracker()
+    whole.add(t[t < 60.0], q[t < 60.0], dq[t < 60.0], tau[t < 60.0])
+    for a in np.flatnonzero(t < 60.0)[::3]:
+        pieces.add(t[a:a + 3], q[a:a + 3], dq[a:a + 3], tau[a:a + 3])
+    assert pieces.latest == whole.latest == t[t < 60.0][-1]
+    for tracker in (whole, pieces):
+        tracker.announce(60.0)
+        late = t >= 60.0
+        tracker.add(t[late], q[late], dq[late], tau[late])
+    assert [b[:2] + (b[3],) for b in pieces.bins] == [b[:2] + (b[3],) for b in whole.bins]
+    np.testing.assert_allclose([b[2] for b in pieces.bins], [b[2] for b in whole.bins],
+                               rtol=1e-9)
+    assert pieces.stiffness(1) == pytest.approx(whole.stiffness(1), rel=1e-9)
+    assert whole.stiffness(1) == pytest.approx(900.0, rel=1e-3)

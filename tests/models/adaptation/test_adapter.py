@@ -311,3 +311,25 @@ def test_a_drift_with_nothing_to_carry_or_just_after_a_change_starts_no_segment(
     assert adapter.body_wall.starts == [60.0]
     adapter.on_drift(95.0)                   # a later drift is a change of its own
     assert adapter.body_wall.starts == [60.0, 95.0]
+
+
+def test_an_idle_tick_is_one_that_does_nothing():
+    """The host's idle_tick: a tick it calls idle returns no round whatever rows came before
+    it, and a tick at the next round's time is not idle (the replay worker skips the idle
+    ones and adds their rows with the next call)."""
+    from wrenchd.models.adaptation.host import AdapterHost
+
+    host = AdapterHost({"PSM1": AdaptationConfig(min_train_samples=64, interval_s=2.0)})
+    rng = np.random.default_rng(0)
+    width = host.adapters["PSM1"].width
+    rows = rng.standard_normal((200, width)).astype(np.float32)
+    host.call("PSM1", "rows", 0.0, (rows, np.linspace(0.0, 1.0, 200)))
+    assert not host.idle_tick("PSM1", 1.0)                 # enough rows, no round yet
+    assert host.call("PSM1", "tick", 1.0) is not None
+    assert host.idle_tick("PSM1", 2.9)                     # the next round is due at 3.0 s
+    host.call("PSM1", "rows", 2.9, (rows, np.linspace(1.0, 2.9, 200)))
+    assert host.call("PSM1", "tick", 2.9) is None
+    assert not host.idle_tick("PSM1", 3.0) and host.call("PSM1", "tick", 3.0) is not None
+    host.call("PSM1", "fail", 3.1)
+    assert not host.idle_tick("PSM1", 3.1)                 # an injected failure must run
+    assert host.idle_tick("PSM9", 3.1)                     # not an adapting arm
