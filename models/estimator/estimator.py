@@ -276,6 +276,8 @@ class TwoStepEstimator:
             raise ConfigError("step_many_joint needs estimators sharing one step-1 kernel")
         if len(kernel.layers) != 1:            # stacked layers (Xfer): one stream at a time
             return [e.step_many(*b) for e, b in zip(estimators, batches)]
+        if all(len(b[0]) == 1 for b in batches):
+            return TwoStepEstimator._step_one_each(estimators, batches)
         checked = [e._check_many(*b) for e, b in zip(estimators, batches)]
         layer = kernel.layers[0]
         lengths = [len(c[0]) for c in checked]
@@ -317,6 +319,51 @@ class TwoStepEstimator:
             results.append(e._finish_many(c[0], c[1], c[2], c[3], c[4], step1))
         return results
 
+    @staticmethod
+    def _step_one_each(estimators: list[TwoStepEstimator],
+                       batches: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]
+                       ) -> list[list[EstimatorOutput]]:
+        """:meth:`step_many_joint` when every stream has one sample (arms at the same rate,
+        each sample handled as it comes): the streams' inputs checked, projected, stepped and
+        read out as one (B, ...) batch, without the per-stream bookkeeping of runs."""
+        kernel = estimators[0]._recurrent
+        layer = kernel.layers[0]
+        try:
+            t = np.array([float(b[0][0]) for b in batches])
+            q = np.array([b[1] for b in batches], dtype=np.float64).reshape(-1, N_JOINTS)
+            dq = np.array([b[2] for b in batches], dtype=np.float64).reshape(-1, N_JOINTS)
+            tau = np.array([b[3] for b in batches], dtype=np.float64).reshape(-1, N_JOINTS)
+        except (TypeError, ValueError) as exc:
+            raise DataError(f"t must be (1,) and q, dq, tau_measured (1, 6) per stream: {exc}")
+        width = len(estimators)
+        if q.shape != (width, N_JOINTS) or dq.shape != q.shape or tau.shape != q.shape:
+            raise DataError(f"t must be (1,) and q, dq, tau_measured (1, 6) per stream; got "
+                            f"{q.shape}, {dq.shape}, {tau.shape} for {width} streams")
+        x = np.concatenate([q, dq], axis=1)                                   # (B, 12)
+        if not (np.isfinite(t).all() and np.isfinite(x).all() and np.isfinite(tau).all()):
+            raise DataError("joint state contains NaN or Inf")
+        g, hid = layer.n_groups, layer.hidden_size
+        h = np.zeros((g, width, hid), dtype=kernel.dtype)
+        cell = np.zeros_like(h)
+        restart = []
+        for i, e in enumerate(estimators):
+            last = e._t_last
+            fresh = last is None or not 0.0 < t[i] - last <= e.config.max_gap_s
+            restart.append(fresh)
+            if not fresh and e._state is not None:
+                h[:, i], cell[:, i] = e._state[0][:, 0], e._state[1][:, 0]
+        xp = x.astype(kernel.dtype) @ layer.weight_x
+        xp += layer.bias_flat
+        h, cell = layer.step_projected(xp.reshape(width, g, -1).transpose(1, 0, 2), h, cell)
+        step1 = kernel.head(h).astype(np.float64)                           # (B, 6)
+        results = []
+        for i, e in enumerate(estimators):
+            e._state = (np.ascontiguousarray(h[:, i:i + 1]),
+                        np.ascontiguousarray(cell[:, i:i + 1]))
+            results.append(e._finish_many(t[i:i + 1], q[i:i + 1], x[i:i + 1], tau[i:i + 1],
+                                          np.array(restart[i:i + 1]), step1[i:i + 1]))
+        return results
+
     def _check_many(self, t, q, dq, tau_measured):
         """Validated ``(t, q, x = [q, dq], tau, restart)`` of a run of samples; ``restart``
         (N,) says where the state restarts (first sample, gaps, time not advancing)."""
@@ -345,12 +392,17 @@ class TwoStepEstimator:
         n = len(t)
         self._t_last = float(t[-1])
         if self._corr is not None:
-            windows = []
-            for a, b in _segments(restart):
-                if restart[a]:
+            if n == 1:                                  # the common case, without the runs
+                if restart[0]:
                     self._window.reset()
-                windows += [self._window.push(row).copy() for row in x[a:b]]
-            win = np.stack(windows)
+                win = self._window.push(x[0])[None].copy()
+            else:
+                windows = []
+                for a, b in _segments(restart):
+                    if restart[a]:
+                        self._window.reset()
+                    windows += [self._window.push(row).copy() for row in x[a:b]]
+                win = np.stack(windows)
             predicted = self._corr.correct(win, step1.astype(np.float32)).astype(np.float64)
         else:
             win, predicted = None, step1

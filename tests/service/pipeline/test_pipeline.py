@@ -174,6 +174,39 @@ def test_arms_stepped_together_give_what_each_alone_gives(seal):
     assert [p.counters for p in alone] == [p.counters for p in joint]
 
 
+def test_arms_stepped_together_one_sample_each(seal):
+    """The daemon's usual case, each arm's samples handled as they come (one per arm per
+    pass, the streams checked and stepped as one batch): what each arm's own process gives,
+    to float32 rounding, restarts after a gap and a refused NaN sample included."""
+    sessions = [run_scenario("trocar", 1.0, s).joint_states for s in (4, 5, 6)]
+    streams = [[msg(js, i) for i in range(len(js))] for js in sessions]
+    streams[1][40] = msg(sessions[1], 40, velocity=np.full(6, np.nan))
+    streams[2][120:] = [msg(sessions[2], i, t=sessions[2].t[i] + 0.2)
+                        for i in range(120, len(sessions[2]))]
+    config = PipelineConfig(policy=PolicyConfig(name="frozen"), calibration_s=0.5)
+    alone = [ArmPipeline(f"PSM{k}", seal, config) for k in (1, 2, 3)]
+    joint = [ArmPipeline(f"PSM{k}", seal, config) for k in (1, 2, 3)]
+    for p in joint[1:]:
+        p.estimator.share_step1(joint[0].estimator)
+    n = min(len(s) for s in streams)
+    restarts = 0
+    for i in range(n):
+        ref = [p.process(stream[i]) for p, stream in zip(alone, streams)]
+        got = [res[0] for res in ArmPipeline.process_many_joint(
+            joint, [[stream[i]] for stream in streams])]
+        for (a, ev_a), (b, ev_b) in zip(ref, got):
+            assert [e.kind for e in ev_a] == [e.kind for e in ev_b]
+            assert (a is None) == (b is None)
+            if a is not None:
+                np.testing.assert_allclose(b.wrench, a.wrench, rtol=1e-4, atol=1e-5)
+                np.testing.assert_allclose(b.predicted_torque, a.predicted_torque,
+                                           rtol=1e-4, atol=1e-5)
+                assert (a.free, a.restarted, a.index) == (b.free, b.restarted, b.index)
+                restarts += a.restarted
+    assert restarts == 4                   # each arm's first sample, and arm 3 after its gap
+    assert [p.counters for p in alone] == [p.counters for p in joint]
+
+
 def test_samples_waiting_from_before_a_contacts_onset_margin_are_offered_after_it(seal):
     """The delay line at a contact: samples queued within ``onset_margin_s`` of the gate's
     onset are dropped, older ones wait through the contact and are offered after it (the
