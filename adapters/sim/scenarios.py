@@ -18,8 +18,14 @@
                        --settled``'s reference).
 =====================  ===================================================================
 
-Everything random (trajectory, contact times, noise) comes from one seed, so a scenario is
-reproducible to the byte.
+Everything random (trajectory, contact times, noise, the patient) comes from one seed, so a
+scenario is reproducible to the byte.
+
+Patients: by default every session is the same patient (the effects' default seal, body wall,
+incision and pressure). ``run_scenario(..., patients=PatientRanges())`` draws a patient per
+session instead (:mod:`wrenchd.adapters.sim.patients`: ranges and sources); the draw comes from
+its own stream of the seed, so the motion, contacts and noise of a seed are the same with or
+without variation, and it is recorded in ``metadata["patient"]``.
 """
 
 from __future__ import annotations
@@ -33,6 +39,12 @@ import numpy as np
 from wrenchd.models.errors import ConfigError
 from wrenchd.models.physics.model import PhysicsModel
 from wrenchd.models.series import Session
+from wrenchd.adapters.sim.patients import (
+    PatientRanges,
+    apply_patient,
+    draw_patient,
+    fixed_patient,
+)
 from wrenchd.adapters.sim.simulator import SimulatorConfig, simulate
 from wrenchd.adapters.sim.trajectory import FourierTrajectory, Workspace
 
@@ -147,16 +159,25 @@ def contact_episodes(rng: np.random.Generator, duration_s: float, every_s: float
 
 
 def scenario_model(scenario: Scenario, duration_s: float, episodes: list[list[float]],
-                   model: PhysicsModel | None) -> PhysicsModel:
+                   model: PhysicsModel | None, patient: dict[str, dict[str, Any]] | None = None,
+                   handle_nm_per_rad: float | None = None) -> PhysicsModel:
     """The scenario's physics model, or ``model`` with the scenario's contacts put in.
 
-    A user model replaces the scenario's physics; if it has an ``external_contact`` effect
+    ``patient``: effect parameters by effect name (:func:`~wrenchd.adapters.sim.patients.
+    draw_patient`) put into the scenario's effects; ``handle_nm_per_rad``: the contact handle's
+    torsional stiffness [N m/rad] (None: the contact effect's default). A user model replaces
+    the scenario's physics (neither is applied to it); if it has an ``external_contact`` effect
     without episodes, it receives the scenario's.
     """
     if model is None:
         effects = scenario.effects(duration_s)
+        if patient:
+            effects = apply_patient(effects, patient)
         if episodes:
-            effects.append({"name": "external_contact", "params": {"episodes": episodes}})
+            contact: dict[str, Any] = {"episodes": episodes}
+            if handle_nm_per_rad is not None:
+                contact["torsional_nm_per_rad"] = handle_nm_per_rad
+            effects.append({"name": "external_contact", "params": contact})
         return PhysicsModel.from_dict({"description": f"scenario {scenario.name}",
                                        "effects": effects})
     data = model.to_dict()
@@ -168,10 +189,16 @@ def scenario_model(scenario: Scenario, duration_s: float, episodes: list[list[fl
 
 def run_scenario(name: str, duration_s: float, seed: int, model: PhysicsModel | None = None,
                  config: SimulatorConfig | None = None,
-                 contact_free_s: float | None = None) -> Session:
+                 contact_free_s: float | None = None, patients: PatientRanges | None = None,
+                 handle_nm_per_rad: float | None = None,
+                 force_sensor: bool | None = None) -> Session:
     """Simulate scenario ``name`` for ``duration_s`` seconds with ``seed``.
 
-    ``contact_free_s`` overrides the scenario's contact-free start [s].
+    ``contact_free_s`` overrides the scenario's contact-free start [s]; ``patients`` draws
+    this session's patient from those ranges (None: the fixed default patient);
+    ``handle_nm_per_rad`` sets the contact handle's torsional stiffness [N m/rad];
+    ``force_sensor`` overrides whether the sensor channel is recorded (its noise has its own
+    stream, so recording it changes nothing else).
     """
     try:
         scenario = SCENARIOS[name]
@@ -180,14 +207,19 @@ def run_scenario(name: str, duration_s: float, seed: int, model: PhysicsModel | 
     if not duration_s > 0:
         raise ConfigError(f"duration must be > 0 s, got {duration_s}")
     root = np.random.SeedSequence(seed)
-    traj_seed, contact_seed, sensor_seed = root.spawn(3)
+    # children depend on their index only: the fourth (the patient's) leaves the others as
+    # they are without variation
+    traj_seed, contact_seed, sensor_seed, patient_seed = root.spawn(4)
     trajectory = FourierTrajectory(scenario.workspace, np.random.default_rng(traj_seed),
                                    duration_s, freq_hz=scenario.freq_hz)
     free_s = scenario.contact_free_s if contact_free_s is None else contact_free_s
     episodes = (contact_episodes(np.random.default_rng(contact_seed), duration_s,
                                  scenario.contact_every_s, start_s=free_s)
                 if scenario.contact_every_s else [])
-    physics = scenario_model(scenario, duration_s, episodes, model)
+    patient = (draw_patient(patients, np.random.default_rng(patient_seed))
+               if patients is not None else None)
+    sensor = scenario.force_sensor if force_sensor is None else force_sensor
+    physics = scenario_model(scenario, duration_s, episodes, model, patient, handle_nm_per_rad)
     metadata = {
         "scenario": {
             "name": scenario.name, "description": scenario.description,
@@ -196,8 +228,12 @@ def run_scenario(name: str, duration_s: float, seed: int, model: PhysicsModel | 
                           "upper": list(scenario.workspace.upper)},
             "freq_hz": list(scenario.freq_hz), "contact_episodes": episodes,
             "contact_free_s": free_s,
-            "force_sensor": scenario.force_sensor, "custom_model": model is not None,
+            "force_sensor": sensor, "custom_model": model is not None,
+            "handle_nm_per_rad": handle_nm_per_rad,
         },
+        "patient": {"variation": patients is not None,
+                    "ranges": patients.model_dump(mode="json") if patients else None,
+                    "draw": (patient or fixed_patient()) if model is None else None},
     }
     return simulate(physics, trajectory, duration_s, sensor_seed, config,
-                    force_sensor=scenario.force_sensor, metadata=metadata)
+                    force_sensor=sensor, metadata=metadata)
