@@ -6,6 +6,12 @@ from the working directory. The checkpoint carries the config, the format versio
 description of the data, the validation score (the last ``val_fraction`` of every series, see
 :mod:`wrenchd.models.estimator.training`) and the provenance of the run
 (:mod:`wrenchd.service.provenance`).
+
+Early stopping on held-out sessions: with a ``validation`` list, the step-1 networks (``base``,
+``troc``) and ``xfer`` train on every sample of ``data`` and score each epoch on the
+``validation`` sessions instead (:func:`fit_step1_held_out`, :func:`fit_xfer_held_out`); the
+recipe's ``epochs`` is the ceiling, its ``patience`` the early stop, and the weights of each
+joint group's best validation epoch are kept.
 """
 
 from __future__ import annotations
@@ -34,6 +40,9 @@ class SimulatedData(BaseModel):
     scenario: str = Field(description="scenario name (see `wrenchd simulate --help`)")
     duration_s: float = Field(gt=0.0, description="simulated length [s]")
     seed: int = Field(default=0, description="seed of the simulated session")
+    patient_variation: bool = Field(
+        default=False, description="draw this session's patient (seal, body wall, incision, "
+                                   "pressure) from the default ranges; false: the fixed patient")
 
 
 class FileData(BaseModel):
@@ -53,6 +62,9 @@ class TrainCommandConfig(BaseModel):
     configuration: Literal["base", "troc", "corr", "xfer"] = Field(
         description="base/troc: step-1 networks; corr/xfer: step 2 on a base checkpoint")
     data: list[SimulatedData | FileData] = Field(min_length=1, description="training series")
+    validation: list[SimulatedData | FileData] = Field(
+        default_factory=list, description="held-out sessions for early stopping (base, troc, "
+                                          "xfer); empty: the last val_fraction of every series")
     recipe: str | None = Field(default=None, description="recipe name; default per configuration")
     overrides: dict[str, Any] = Field(default_factory=dict,
                                       description="recipe fields replaced (e.g. epochs)")
@@ -68,6 +80,9 @@ class TrainCommandConfig(BaseModel):
             raise ValueError(f"configuration {self.configuration!r} needs base_checkpoint")
         if self.configuration in ("base", "troc") and self.base_checkpoint:
             raise ValueError(f"configuration {self.configuration!r} takes no base_checkpoint")
+        if self.configuration == "corr" and self.validation:
+            raise ValueError("configuration 'corr' validates on the tail of its series; "
+                             "held-out validation sessions are for base, troc and xfer")
         return self
 
     @property
@@ -102,8 +117,14 @@ def load_series(spec: SimulatedData | FileData):
     if isinstance(spec, SimulatedData):
         from wrenchd.adapters.sim.scenarios import run_scenario
 
-        session = run_scenario(spec.scenario, spec.duration_s, spec.seed)
-        return session.joint_states, {"source": "simulator", **spec.model_dump()}
+        from wrenchd.adapters.sim.patients import PatientRanges
+
+        session = run_scenario(spec.scenario, spec.duration_s, spec.seed,
+                               patients=PatientRanges() if spec.patient_variation else None)
+        info = {"source": "simulator", **spec.model_dump(exclude={"patient_variation"})}
+        if spec.patient_variation:                     # the fixed patient's record as it was
+            info.update(patient_variation=True, patient=session.metadata["patient"]["draw"])
+        return session.joint_states, info
     path = Path(spec.path)
     if path.suffix.lower() == ".mcap":
         from wrenchd.adapters.mcap_session_reader import read_session
@@ -115,6 +136,83 @@ def load_series(spec: SimulatedData | FileData):
         return (read_psm_csv(path, rate_hz=spec.rate_hz),
                 {"source": "csv", "path": spec.path, "rate_hz": spec.rate_hz})
     raise ConfigError(f"{spec.path}: data files must be .mcap or .csv")
+
+
+def whole_segments(series, max_gap_s: float) -> list[tuple[Any, Any]]:
+    """Every gap-free segment of ``series`` as (features (T, 12), measured torques (T, 6))."""
+    import numpy as np
+
+    from wrenchd.models.estimator.features import segments
+
+    out = []
+    for s in series:
+        x = np.concatenate([s.position, s.velocity], axis=1)
+        for seg in segments(s.t, max_gap_s):
+            if seg.stop - seg.start >= 2:
+                out.append((x[seg], s.effort[seg]))
+    return out
+
+
+def _held_out(series, validation, config):
+    from wrenchd.models.errors import DataError
+
+    train = whole_segments(series, config.max_gap_s)
+    val = whole_segments(validation, config.max_gap_s)
+    if not train or not val:
+        raise DataError("need training and held-out validation samples")
+    return train, val
+
+
+def fit_step1_held_out(series, validation, config, model_config=None,
+                       data: dict[str, Any] | None = None, on_epoch=None, device="cpu"):
+    """A step-1 network (``Base``, ``Seal`` or ``Troc``) trained on every sample of
+    ``series`` and early-stopped on the held-out ``validation`` sessions.
+
+    Args:
+        series, validation: JointStates of free motion (no contact).
+        config: the recipe (``epochs``: the ceiling; ``patience``: the early stop).
+    Returns:
+        a ``TrainResult`` of kind ``free_space``; its validation scores the held-out sessions.
+    """
+    import numpy as np
+    import torch
+
+    from wrenchd.models.estimator.free_space import FreeSpaceModel
+    from wrenchd.models.estimator.free_space_training import train_recurrent
+    from wrenchd.models.estimator.training import TrainResult, describe_data
+
+    train, val = _held_out(series, validation, config)
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(config.seed)
+        model = FreeSpaceModel(model_config)
+        model.set_input_normalisation(np.concatenate([x for x, _ in train]))
+        model.set_output_normalisation(np.concatenate([y for _, y in train]))
+        report, history = train_recurrent(model, train, val, config, on_epoch, device)
+    described = {**describe_data(series, data, config), "val_fraction": None,
+                 "held_out_series": len(validation)}
+    return TrainResult("free_space", model, config, described, report, history)
+
+
+def fit_xfer_held_out(base, series, validation, config, xfer_config=None,
+                      data: dict[str, Any] | None = None, on_epoch=None, device="cpu"):
+    """``Xfer``'s new layers on the frozen ``base`` trained on every sample of ``series``,
+    early-stopped on the held-out ``validation`` sessions (trocar motion, no contact)."""
+    import numpy as np
+    import torch
+
+    from wrenchd.models.estimator.correction import Xfer
+    from wrenchd.models.estimator.free_space_training import train_recurrent
+    from wrenchd.models.estimator.training import TrainResult, describe_data
+
+    train, val = _held_out(series, validation, config)
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(config.seed)
+        model = Xfer(xfer_config, base=base)
+        model.set_output_normalisation(np.concatenate([y for _, y in train]))
+        report, history = train_recurrent(model, train, val, config, on_epoch, device)
+    described = {**describe_data(series, data, config), "val_fraction": None,
+                 "held_out_series": len(validation)}
+    return TrainResult("xfer", model, config, described, report, history)
 
 
 def load_base(reference: str):
@@ -151,8 +249,14 @@ def train(config: TrainCommandConfig, output: str | None = None, device: str | N
         js, info = load_series(spec)
         series.append(js)
         described.append(info)
+    held_out, held_described = [], []
+    for spec in config.validation:
+        js, info = load_series(spec)
+        held_out.append(js)
+        held_described.append(info)
     data = {"configuration": config.configuration, "recipe": config.recipe_name,
             "series": described, "description": config.description,
+            "validation_series": held_described,
             "base_checkpoint": config.base_checkpoint, "device": str(dev)}
     bar = tqdm(total=train_config.epochs, desc=f"train {config.configuration}", unit="epoch",
                disable=not progress)
@@ -163,9 +267,15 @@ def train(config: TrainCommandConfig, output: str | None = None, device: str | N
 
     start = time.perf_counter()
     try:
-        if config.configuration in ("base", "troc"):
+        if config.configuration in ("base", "troc") and held_out:
+            result = fit_step1_held_out(series, held_out, train_config, data=data,
+                                        on_epoch=on_epoch, device=dev)
+        elif config.configuration in ("base", "troc"):
             result = fit_free_space(series, config=train_config, data=data, on_epoch=on_epoch,
                                     device=dev)
+        elif config.configuration == "xfer" and held_out:
+            result = fit_xfer_held_out(load_base(config.base_checkpoint), series, held_out,
+                                       train_config, data=data, on_epoch=on_epoch, device=dev)
         elif config.configuration == "xfer":
             result = fit_xfer(load_base(config.base_checkpoint), series, config=train_config,
                               data=data, on_epoch=on_epoch, device=dev)
