@@ -2,6 +2,16 @@
 
     wrenchd reproduce --full --out reports/paper-reproduction     # ~30 min on 2 CPU cores
     wrenchd reproduce --quick --out /tmp/repro                    # seconds (the test suite)
+    wrenchd reproduce --paper --out reports/paper-scale           # the paper-scale run
+    wrenchd reproduce --paper-quick --out /tmp/paper              # its pipeline, toy sizes
+
+``--full`` is the shortened run of the committed report (one fixed patient, shipped step-1
+weights, 6-epoch Troc and Xfer, one seed). ``--paper`` is the paper-scale run: patient
+variation, the paper's 92 no-contact and 12 contact trials, three training seeds, Base and
+Seal trained here on an hour of free motion each, every recurrent network to convergence
+(the paper's recipes, 1000 epochs as the ceiling, early stopping on held-out sessions), the
+paper's Corr recipe, the realistic handle, a 10 Hz causal output filter with both floors
+(:data:`wrenchd.service.studies.reproduction.PAPER`); the options below change its sizes.
 
 Writes ``results.json`` (every number), ``force-rmse-vs-length.png`` (matplotlib, Agg) and
 ``README.md`` (the three tables, the oracle ratios, the fast Corr recipe beside the paper's).
@@ -24,13 +34,21 @@ def reproduce(args: argparse.Namespace) -> int:
 
     from wrenchd.models.estimator.pretrained import load_pretrained
     from wrenchd.service.provenance import RunMeter, stamp
-    from wrenchd.service.studies.reproduction import QUICK, ReproductionConfig, run_reproduction
+    from wrenchd.service.studies.reproduction import (
+        PAPER,
+        PAPER_QUICK,
+        QUICK,
+        ReproductionConfig,
+        run_reproduction,
+    )
     from wrenchd.service.studies.reproduction_report import PLOT, markdown, plot, pretrained_info
 
     meter = RunMeter()
     if args.threads:
         torch.set_num_threads(args.threads)
-    config = QUICK if args.quick else ReproductionConfig()
+    config = (QUICK if args.quick else PAPER if args.paper else PAPER_QUICK if args.paper_quick
+              else ReproductionConfig())
+    config = with_options(config, args)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     if args.render_only:                          # tables and plot again, no training
@@ -38,9 +56,12 @@ def reproduce(args: argparse.Namespace) -> int:
         wall, command = results["wall_seconds"], results["command"]
     else:
         start = time.perf_counter()
-        results = run_reproduction(config, load_pretrained("base"), load_pretrained("seal"),
-                                   pretrained_info(),
-                                   log=lambda m: print(m, file=sys.stderr, flush=True))
+        shipped = config.step1 is None
+        results = run_reproduction(config, load_pretrained("base") if shipped else None,
+                                   load_pretrained("seal") if shipped else None,
+                                   pretrained_info() if shipped else None,
+                                   log=lambda m: print(m, file=sys.stderr, flush=True),
+                                   device=args.device)
         wall = time.perf_counter() - start
         command = "wrenchd reproduce " + " ".join(args.argv)
         results["wall_seconds"], results["command"] = round(wall, 1), command
@@ -52,6 +73,32 @@ def reproduce(args: argparse.Namespace) -> int:
     return 0
 
 
+def with_options(config, args: argparse.Namespace):
+    """``config`` with the command line's size options put in."""
+    update: dict = {}
+    if args.seeds:
+        update["training_seeds"] = tuple(int(x) for x in args.seeds.split(","))
+    if args.no_contact_trials:
+        update["no_contact_trials"] = args.no_contact_trials
+    if args.contact_trials:
+        update["contact_trials"] = args.contact_trials
+    if args.fixed_patient:
+        update["patient_variation"] = False
+    if args.max_epochs:
+        update["recurrent_overrides"] = {**config.recurrent_overrides,
+                                         "epochs": args.max_epochs}
+        if config.step1 is not None:
+            update["step1"] = config.step1.model_copy(update={"overrides": {
+                **config.step1.overrides, "epochs": args.max_epochs}})
+    if args.step1_hours is not None:
+        if config.step1 is None:
+            raise SystemExit("--step1-hours needs a run that trains step 1 (--paper)")
+        update["step1"] = update.get("step1", config.step1).model_copy(
+            update={"duration_s": args.step1_hours * 3600.0})
+    # validate the combination as a whole
+    return type(config)(**{**config.model_dump(), **update}) if update else config
+
+
 def register(subparsers) -> None:
     """Add ``wrenchd reproduce`` to the CLI."""
     p = subparsers.add_parser("reproduce", help="regenerate the paper's tables on the simulator",
@@ -60,6 +107,22 @@ def register(subparsers) -> None:
     mode = p.add_mutually_exclusive_group(required=True)
     mode.add_argument("--full", action="store_true", help="the paper's lengths (~30 min)")
     mode.add_argument("--quick", action="store_true", help="tiny lengths and epochs (seconds)")
+    mode.add_argument("--paper", action="store_true",
+                      help="the paper-scale run (hours; a GPU trains the recurrent networks)")
+    mode.add_argument("--paper-quick", action="store_true",
+                      help="the paper-scale pipeline at toy sizes (under a minute)")
+    p.add_argument("--seeds", default=None, help="training seeds, comma separated (e.g. 0,1,2)")
+    p.add_argument("--no-contact-trials", type=int, default=None, help="no-contact test trials")
+    p.add_argument("--contact-trials", type=int, default=None, help="contact test trials")
+    p.add_argument("--max-epochs", type=int, default=None,
+                   help="epoch ceiling of step 1, Troc and Xfer (early stopping still applies)")
+    p.add_argument("--step1-hours", type=float, default=None,
+                   help="free-motion training data per step-1 model [h] (--paper: 1)")
+    p.add_argument("--fixed-patient", action="store_true",
+                   help="one fixed patient in every session (no patient variation)")
+    p.add_argument("--device", default="cpu",
+                   help="where the recurrent networks train: cpu, cuda, or auto (CUDA when "
+                        "present)")
     p.add_argument("--out", required=True, help="report directory")
     p.add_argument("--threads", type=int, default=None, help="torch CPU threads")
     p.add_argument("--notes", default=None, help="Markdown file appended to the report")
@@ -70,6 +133,8 @@ def register(subparsers) -> None:
         args.argv = [a for a in sys.argv[2:] if a != "--render-only"
                      ] if sys.argv[1:2] == ["reproduce"] else []
         args.notes_text = "\n" + Path(args.notes).read_text() if args.notes else ""
+        if args.device == "auto":
+            args.device = None
         return reproduce(args)
 
     p.set_defaults(func=run)

@@ -42,3 +42,41 @@ def test_quick_reproduction_writes_the_report(tmp_path):
     # The floor is the effort noise through J^-T: well under a newton on these trials.
     assert 0.0 < oracle < 0.5
     assert r["fast_vs_paper"]["fast"]["train_seconds"] > 0
+
+
+def test_paper_quick_records_patients_trials_seeds_intervals_and_both_floors(tmp_path):
+    """The paper-scale pipeline at toy sizes: step 1 trained here, held-out early stopping,
+    patient variation, two seeds, the sensor channel and the filtered floor."""
+    out = tmp_path / "paper"
+    done = subprocess.run([sys.executable, "-m", "wrenchd", "reproduce", "--paper-quick",
+                           "--out", str(out), "--threads", "1"], capture_output=True, text=True,
+                          env={**os.environ, "OMP_NUM_THREADS": "1"}, timeout=300)
+    assert done.returncode == 0, done.stderr
+    r = json.loads((out / "results.json").read_text())
+    assert r["patient_variation"] is True and r["patient_draws_disjoint"] is True
+    assert r["trials"]["no_contact"] == 3 and r["trials"]["contact"] == 2
+    assert r["seeds"]["training"] == [0, 1]
+    assert len(r["step1"]["per_seed"]) == 2 and r["step1"]["held_out_sessions"] == 1
+    assert r["output_filter"]["cutoff_hz"] == 10.0
+    raw, filt = r["oracle"]["contact"]["force_rmse"], r["oracle_filtered"]["contact"]["force_rmse"]
+    assert 0.0 < filt < raw
+    for name in CONFIGS:
+        cell = r["contact"][name]["40.0"]
+        assert cell["seeds"] == 2 and cell["trials"] == 2
+        for ref in ("truth", "sensor"):
+            for metric in ("rmse", "contact_rmse", "peak"):
+                c = cell["scores"][ref][metric]
+                assert c["force_ci95"][0] <= c["force"] <= c["force_ci95"][1], (name, ref)
+                assert len(c["per_seed_force"]) == 2
+        # the RMSE over contact samples is an RMSE over fewer samples than the whole trial's,
+        # the peak error at least the RMSE
+        truth = cell["scores"]["truth"]
+        assert truth["peak"]["force"] >= truth["rmse"]["force"]
+        assert cell["force_ratio_raw_floor"] < cell["force_ratio"]     # filtered floor lower
+    assert set(r["step1_in_domain"]) == {"Base", "Seal"}
+    assert "within_1_5x" in r["criteria"]["best_two_step"]
+    text = (out / "README.md").read_text()
+    for title in ("Table 1: training time", "Table 2: no-contact RMSE",
+                  "Table 3: contact RMSE", "Step 1 in domain", "## Targets",
+                  "oracle (filtered)", "sensor: force RMSE"):
+        assert title in text
