@@ -345,12 +345,21 @@ class Scorer:
 
     def score(self, torques: list[np.ndarray], filtered: bool = True
               ) -> dict[str, dict[str, np.ndarray]]:
-        """{reference: {metric: (trials, 6)}}."""
-        est = self.wrenches(torques, filtered)
+        """{reference: {metric: (trials, 6)}}.
+
+        With an output filter, ``truth_unfiltered`` scores the same estimates before the
+        filter against the truth (the like-for-like comparison with the raw floor).
+        """
+        raw = self.wrenches(torques, filtered=False)
+        est = ([lowpass(w, s.joint_states.rate_hz, self.cutoff_hz)
+                for w, s in zip(raw, self.sessions)] if filtered else raw)
+        refs = [(ref, values, est) for ref, values in self.references.items()]
+        if filtered and self.cutoff_hz is not None:
+            refs.append(("truth_unfiltered", self.references["truth"], raw))
         out = {}
-        for ref, values in self.references.items():
+        for ref, values, estimates in refs:
             rows = [trial_errors(e, r, s.truth.in_contact)
-                    for e, r, s in zip(est, values, self.sessions)]
+                    for e, r, s in zip(estimates, values, self.sessions)]
             out[ref] = {m: np.array([r[m] for r in rows]) for m in METRICS}
         return out
 
@@ -396,6 +405,10 @@ def summarise(per_seed: list[dict[str, dict[str, np.ndarray]]],
         "force_ratio": float(force.mean() / floor[:, :3].mean()),
         "force_ratio_raw_floor": float(force.mean() / raw[:, :3].mean()),
         "seeds": len(per_seed), "trials": int(rmse.shape[1]), "scores": {}}
+    if "truth_unfiltered" in per_seed[0]:
+        unf = np.stack([p["truth_unfiltered"]["rmse"] for p in per_seed])[..., :3].mean()
+        out["unfiltered_force_rmse"] = float(unf)
+        out["unfiltered_force_ratio_raw_floor"] = float(unf / raw[:, :3].mean())
     for ref in per_seed[0]:
         out["scores"][ref] = {m: _cell_stats(np.stack([p[ref][m] for p in per_seed]))
                               for m in METRICS}
@@ -602,25 +615,33 @@ def run_reproduction(config: ReproductionConfig, base: FreeSpaceModel | None = N
     return results
 
 
+def like_for_like(cell: dict[str, Any]) -> dict[str, float]:
+    """A cell's force RMSE over the floor of the same filtering: ``raw`` (the estimate
+    before any output filter over the raw oracle) and, with a filter, ``filtered`` (the
+    filtered estimate over the filtered oracle)."""
+    if "unfiltered_force_ratio_raw_floor" in cell:
+        return {"raw": cell["unfiltered_force_ratio_raw_floor"], "filtered": cell["force_ratio"]}
+    return {"raw": cell["force_ratio_raw_floor"]}
+
+
 def criteria(results: dict[str, Any]) -> dict[str, Any]:
-    """The paper-scale run's targets, measured: in-domain step-1 false force within 2x the
-    oracle floor; on unseen patients the best two-step configuration within 1.5x the raw
-    oracle floor (contact force RMSE at the longest length)."""
+    """The paper-scale run's targets, measured like for like (:func:`like_for_like`): the
+    in-domain step-1 false force within 2x the oracle floor; the best two-step configuration
+    (contact force RMSE at the longest length, unseen patients under patient variation)
+    within 1.5x the raw oracle floor. The verdicts read the ``raw`` pairing."""
     out: dict[str, Any] = {}
     s1 = results.get("step1_in_domain")
     if s1:
-        ratios = {k: v["force_ratio_raw_floor"] for k, v in s1.items()}
-        out["step1_in_domain_force_ratio_raw_floor"] = ratios
-        out["step1_in_domain_force_ratio_filtered_floor"] = {
-            k: v["force_rmse"] / v["oracle_filtered"]["force_rmse"] for k, v in s1.items()}
-        out["step1_in_domain_within_2x"] = bool(max(ratios.values()) <= 2.0)
+        ratios = {k: like_for_like(v) for k, v in s1.items()}
+        out["step1_in_domain"] = {"ratios": ratios, "within_2x": bool(
+            max(r["raw"] for r in ratios.values()) <= 2.0)}
     last = str(float(results["config"]["lengths_s"][-1]))
-    two_step = {k: results["contact"][k][last]["force_ratio_raw_floor"]
+    two_step = {k: like_for_like(results["contact"][k][last])
                 for k in ("Base+Corr", "Seal+Corr", "Seal+Xfer")}
-    best = min(two_step, key=two_step.get)
-    out["best_two_step"] = {"config": best, "force_ratio_raw_floor": two_step[best],
+    best = min(two_step, key=lambda k: two_step[k]["raw"])
+    out["best_two_step"] = {"config": best, "ratios": two_step[best],
                             "unseen_patients": bool(results.get("patient_variation")),
-                            "within_1_5x": bool(two_step[best] <= 1.5)}
+                            "within_1_5x": bool(two_step[best]["raw"] <= 1.5)}
     return out
 
 

@@ -74,9 +74,18 @@ def test_paper_quick_records_patients_trials_seeds_intervals_and_both_floors(tmp
         assert truth["peak"]["force"] >= truth["rmse"]["force"]
         assert cell["force_ratio_raw_floor"] < cell["force_ratio"]     # filtered floor lower
     assert set(r["step1_in_domain"]) == {"Base", "Seal"}
-    assert "within_1_5x" in r["criteria"]["best_two_step"]
+    best = r["criteria"]["best_two_step"]
+    assert best["within_1_5x"] == (best["ratios"]["raw"] <= 1.5)
+    cell = r["contact"][best["config"]]["40.0"]
+    # like for like: the unfiltered estimate over the raw floor, the filtered one over the
+    # filtered floor
+    assert best["ratios"]["raw"] == cell["unfiltered_force_ratio_raw_floor"]
+    assert best["ratios"]["filtered"] == cell["force_ratio"]
+    assert cell["unfiltered_force_ratio_raw_floor"] == pytest.approx(
+        cell["unfiltered_force_rmse"] / raw, rel=1e-9)
+    assert set(r["criteria"]["step1_in_domain"]["ratios"]) == {"Base", "Seal"}
     text = (out / "README.md").read_text()
     for title in ("Table 1: training time", "Table 2: no-contact RMSE",
                   "Table 3: contact RMSE", "Step 1 in domain", "## Targets",
-                  "oracle (filtered)", "sensor: force RMSE"):
+                  "oracle (filtered)", "sensor: force RMSE", "before the filter"):
         assert title in text
