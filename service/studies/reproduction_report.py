@@ -39,11 +39,19 @@ def plot(results: dict[str, Any], path: Path) -> None:
     lengths = results["config"]["lengths_s"]
     fig, ax = plt.subplots(figsize=(6.4, 4.2), dpi=120)
     for name in CONFIGS:
-        ys = [results["contact"][name][str(float(L))]["force_rmse"] for L in lengths]
+        cells = [results["contact"][name][str(float(L))] for L in lengths]
+        ys = [c["force_rmse"] for c in cells]
         style = "--" if name in ("Base", "Seal") else "-o"
-        ax.plot(lengths, ys, style, label=name)
+        (line,) = ax.plot(lengths, ys, style, label=name)
+        if all("scores" in c for c in cells):             # the 95 % intervals as a band
+            ci = [c["scores"]["truth"]["rmse"]["force_ci95"] for c in cells]
+            ax.fill_between(lengths, [a for a, _ in ci], [b for _, b in ci],
+                            color=line.get_color(), alpha=0.15, lw=0)
     ax.axhline(results["oracle"]["contact"]["force_rmse"], color="k", lw=0.8, ls=":",
                label="oracle floor (noise only)")
+    if results.get("output_filter"):
+        ax.axhline(results["oracle_filtered"]["contact"]["force_rmse"], color="k", lw=0.8,
+                   ls="-.", label="oracle through the output filter")
     ax.set_xlabel("trocar training length [s]")
     ax.set_ylabel("mean force RMSE, contact trials [N]")
     ax.set_title("Simulated dVRK PSM: contact force RMSE")
