@@ -122,11 +122,11 @@ def test_bench_arm_times_the_daemons_work_and_the_log_writers_apart(tmp_path):
     assert result["samples"] == 400
 
 
-def test_bench_service_reports_issue_4s_fields_from_a_real_daemon(tmp_path):
+def test_bench_service_reports_latency_drops_and_rate_from_a_real_daemon(tmp_path):
     out = tmp_path / "service.json"
     wrenchd("bench", "service", "--duration", "3", "--rate", "200", "--json", str(out))
     r = json.loads(out.read_text())
-    # the issue's contract: {"e2e_p50_us", "e2e_p99_us", "dropped", "rate_hz"}
+    # the result's contract: {"e2e_p50_us", "e2e_p99_us", "dropped", "rate_hz"}
     assert 0 < r["e2e_p50_us"] <= r["e2e_p99_us"] < 1e6
     assert r["dropped"] == 0 and r["arms"] == 1 and r["adaptation"] is True
     assert r["rate_hz"] == pytest.approx(200.0, rel=0.05)
@@ -180,7 +180,7 @@ def ratio_of_rounded(num: float, den: float) -> tuple[float, float]:
     return ratio, HALF_UNIT * (1.0 + abs(ratio)) / (den - HALF_UNIT) + HALF_UNIT + 1e-12
 
 
-def test_recovery_measures_issue_4_per_seed_and_refuses_bad_settings(tmp_path):
+def test_recovery_measures_each_seed_and_refuses_bad_settings(tmp_path):
     out = tmp_path / "recovery.json"
     run = wrenchd("recovery", "--seeds", "5", "--set", '{"adaptation": {"refit_shrink": 0}}',
                   "--settled", "--bins", "40", "--duration", "160", "--json", str(out))
