@@ -142,6 +142,9 @@ def test_bench_replay_times_the_replay_variants(tmp_path):
         assert r[variant]["samples_per_s"] > 0 and r[variant]["wall_s"] > 0
     assert r["frozen_no_adaptation"]["rounds"] == 0
     assert r["default"]["rounds"] > 0 and r["inline_adaptation"]["rounds"] > 0
+    # the worker's CPU is counted where a worker ran (the default), and only there
+    assert r["default"]["worker_cpu_s"] > 0 and r["default"]["cpu_s"] > 0
+    assert r["inline_adaptation"]["worker_cpu_s"] == r["frozen_no_adaptation"]["worker_cpu_s"] == 0
     assert r["samples_per_s"] == r["default"]["samples_per_s"]
     assert r["realtime_factor"] == pytest.approx(r["samples_per_s"] / 200.0, abs=0.01)
 
