@@ -19,6 +19,18 @@ A contact ends when, for ``exit_s``, the peak score stays under ``exit_sigma`` a
 score has not been over ``joint_exit_sigma`` for ``joint_samples`` samples in a row
 (hysteresis: a contact whose force passes through zero is not chopped into pieces; a run
 length, not single samples, for the joint score, whose free-motion noise often exceeds 1).
+With ``joint_without_peak`` (off by default) the joint score leaves out the peak joint, so a
+spike on one joint (the insertion's friction at a velocity reversal) cannot start a contact
+through it; on the simulated drift scenarios that raised precision but cost recall (weak
+contacts are often carried by one joint more than the others).
+The hysteresis protects training; the published flag need not wait for it. With
+``release_free`` a contact is *released* at its first sample under both exit bounds: from
+there its samples are published free (the force is gone: the release ramp is over in a few
+tenths of a second, ``exit_s`` later the contact would end) but stay the contact's
+(``contact_started`` set, never ``trainable``) until it ends; a released contact is published
+again only on a new entry (the enter bounds held for their run), not at every sample over an
+exit bound (free-motion noise crosses 3 on one joint often enough to chop the release into
+flickers).
 
 The statistics only learn from free samples scoring under ``learn_sigma``, and the scale may
 never grow beyond ``max_growth`` times its warm-up value, so a contact, even one that starts
@@ -34,6 +46,15 @@ collapsing onto the noise of a perfectly adapted model. A gate stuck in contact 
 ``max_contact_s`` is re-calibrated (its scale moves to the present residual): a lasting change
 of the set-up (a new insufflation pressure) must not look like an endless contact; the pipeline
 reports it.
+
+The warm-up learns every sample: the pipeline's calibration guard judges them meanwhile, and a
+contact in the warm-up would otherwise be learnt as free motion, widening the scale several
+times for tens of seconds (and ``max_growth`` caps nothing then: the cap is set from the
+warm-up). With ``robust_warmup`` the warm-up's scale is the RMS of its samples that lie within
+``warmup_trim_sigma`` robust sigmas (1.4826 x median |residual|) on every joint: a contact
+filling less than half the window hardly moves the median and loads its joints far beyond
+that bound, while the free-motion residual's heavy tail (friction spikes at a velocity
+reversal) mostly stays inside it. Learning after the warm-up is unchanged.
 
 Cost: the squared residuals of learning samples are summed in NumPy and handed to the river
 statistics once per ``learn_block`` samples (as their mean, with the per-sample fading factor
@@ -96,13 +117,50 @@ class GateConfig(BaseModel):
                                description="only free samples scoring below this may train")
     max_growth: float = Field(default=2.0, ge=1.0,
                               description="the scale never exceeds this x its warm-up value")
+    robust_warmup: bool = Field(
+        default=True,
+        description="the warm-up's scale is the RMS of its samples within warmup_trim_sigma "
+                    "robust sigmas (1.4826 x median |residual|) on every joint, not of all of "
+                    "them (a contact in the warm-up is not learnt as free motion)")
+    warmup_trim_sigma: float = Field(
+        default=6.0, gt=0.0,
+        description="robust_warmup's bound [robust sigmas]")
+    joint_without_peak: bool = Field(
+        default=False,
+        description="the joint score leaves out the joint with the peak score (one joint's "
+                    "spike is the peak score's to judge)")
+    release_free: bool = Field(
+        default=True,
+        description="while a contact's exit is pending (under the exit bounds, exit_s not yet "
+                    "over) publish the sample free; it stays out of training")
+
+
+def warmup_mean_square(residuals: np.ndarray, within_sigma: float) -> np.ndarray:
+    """Mean square per joint of the free samples among warm-up residuals.
+
+    A sample counts as free when every joint's |residual| is within ``within_sigma`` robust
+    sigmas of zero (sigma: 1.4826 x the joint's median |residual|, which a contact filling
+    less than half the window hardly moves); a contact loads several joints far beyond that.
+
+    Args:
+        residuals: (N, 6) residual torques [N m; N on insertion].
+        within_sigma: bound in robust sigmas.
+    Returns:
+        (6,) mean square [N^2 m^2; N^2], of all samples when none is within the bound.
+    """
+    r = np.asarray(residuals, dtype=float)
+    sigma = 1.4826 * np.median(np.abs(r), axis=0)
+    keep = (np.abs(r) <= within_sigma * sigma).all(axis=1)
+    return np.mean((r[keep] if keep.any() else r) ** 2, axis=0)
 
 
 class GateDecision(NamedTuple):
     """One sample's verdict (an immutable named tuple: cheap to make once per sample).
 
     Attributes:
-        free: free motion (published with the estimate).
+        free: free motion (published with the estimate); with ``release_free`` also a
+            released contact's samples, which keep ``contact_started`` (the pipeline keeps
+            them out of training and drift as contact).
         score: peak score, largest per-joint |residual| / scale [scale units].
         contact_started: sample index where the current contact began (-1 when free; at the
             sample that ends a contact, still that contact's onset).
@@ -134,6 +192,8 @@ class FreeMotionGate:
         """Forget the statistics (a new set-up)."""
         self._msq = [stats.EWMean(fading_factor=self._block_fading) for _ in range(N_JOINTS)]
         self._warm = [stats.Mean() for _ in range(N_JOINTS)]     # plain mean while warming up
+        c = self.config
+        self._warm_buf = (np.empty((c.warmup_samples, N_JOINTS)) if c.robust_warmup else None)
         self._acc = [0.0] * N_JOINTS           # sum of squared residuals not yet learned
         self._n_acc = 0
         self._seen = 0
@@ -142,6 +202,7 @@ class FreeMotionGate:
         self._std = self._floor.copy()
         self._inv_var = (1.0 / self._std ** 2).tolist()
         self._in_contact = False
+        self._published = False                # a contact published as such (release_free)
         self._above = 0
         self._joint_above = 0
         self._joint_held = 0                   # consecutive samples over joint_exit_sigma
@@ -200,6 +261,33 @@ class FreeMotionGate:
         return self._in_contact
 
     @property
+    def contact_start(self) -> int:
+        """Sample index at which the current contact began (-1: none)."""
+        return self._contact_start
+
+    def take_over_contact(self, start: int, t: float) -> None:
+        """Go on with a contact that another judge found (the calibration guard, whose
+        verdicts stand until this gate is calibrated): from here the contact ends by this
+        gate's hysteresis, as one it had found itself.
+
+        Args:
+            start: sample index at which the contact began.
+            t: time of the current sample [s] (the contact's duration counts from here).
+        Raises:
+            DataError: the gate is still warming up.
+        """
+        if not self.calibrated:
+            raise DataError("only a calibrated (warmed-up or seeded) gate can take over a contact")
+        if self._in_contact:
+            return
+        self._in_contact = self._published = True
+        self._contact_start = int(start)
+        self._contact_t0 = t
+        self._below_since = None
+        self._above = self._joint_above = self._joint_held = 0
+        self.contacts += 1
+
+    @property
     def calibrated(self) -> bool:
         return self._seen >= self.config.warmup_samples
 
@@ -227,8 +315,10 @@ class FreeMotionGate:
             for j in range(N_JOINTS):
                 self._warm[j].update(mean_sq[j], n)
             if self._seen == c.warmup_samples:           # seed the slow average
+                trimmed = (None if self._warm_buf is None
+                           else warmup_mean_square(self._warm_buf, c.warmup_trim_sigma))
                 for j in range(N_JOINTS):
-                    warm = self._warm[j].get()
+                    warm = self._warm[j].get() if trimmed is None else float(trimmed[j])
                     self._msq[j] = stats.EWMean(fading_factor=self._block_fading)
                     self._msq[j].update(warm)
                     self._cap[j] = c.max_growth * max(math.sqrt(warm), self._floor[j])
@@ -255,9 +345,13 @@ class FreeMotionGate:
         cfg = self.config
         r = residual.tolist() if isinstance(residual, np.ndarray) else [float(x) for x in residual]
         zsq = [a * a * b for a, b in zip(r, self._inv_var)]      # squared scores z_j^2
-        score = math.sqrt(max(zsq))
-        joint = math.sqrt(sum(zsq) / N_JOINTS)
+        peak = max(zsq)
+        score = math.sqrt(peak)
+        joint = (math.sqrt((sum(zsq) - peak) / (N_JOINTS - 1)) if cfg.joint_without_peak
+                 else math.sqrt(sum(zsq) / N_JOINTS))
         if self._seen < cfg.warmup_samples:              # learn the level first, call nothing
+            if self._warm_buf is not None:
+                self._warm_buf[self._seen] = r
             self._learn(zsq)
             return GateDecision(False, score if self._seen > 1 else 0.0, -1)
         if not self._in_contact:
@@ -271,6 +365,7 @@ class FreeMotionGate:
                 self._contact_t0 = t
                 self._below_since = None
                 self._joint_held = self._joint_above
+                self._published = True
                 self.contacts += 1
             else:
                 if score < cfg.learn_sigma:
@@ -279,16 +374,27 @@ class FreeMotionGate:
                                                                 and t >= self._probation_until))
         # in contact
         self._joint_held = self._joint_held + 1 if joint > cfg.joint_exit_sigma else 0
-        if score < cfg.exit_sigma and self._joint_held < cfg.joint_samples:
+        below = score < cfg.exit_sigma and self._joint_held < cfg.joint_samples
+        if cfg.release_free:
+            if self._published:
+                if below:                              # released: published free from here
+                    self._published, self._above, self._joint_above = False, 0, 0
+            else:                                      # published again on a new entry only
+                self._above = self._above + 1 if score > cfg.enter_sigma else 0
+                self._joint_above = self._joint_above + 1 if joint > cfg.joint_sigma else 0
+                if self._above >= cfg.enter_samples or self._joint_above >= cfg.joint_samples:
+                    self._published = True
+        if below:
             if self._below_since is None:
                 self._below_since = t
             if t - self._below_since >= cfg.exit_s:
                 self._in_contact, self._above, self._joint_above = False, 0, 0
+                self._published = False
                 start, self._contact_start = self._contact_start, -1
                 # the first free sample is not trusted: it is the contact's last, and says
                 # where that contact began (a -1 here would read as "onset unknown" and make
                 # the pipeline drop its whole delay line at every contact's end)
-                return GateDecision(False, score, start)
+                return GateDecision(cfg.release_free, score, start)
         else:
             self._below_since = None
         if t - self._contact_t0 > cfg.max_contact_s:
@@ -302,5 +408,8 @@ class FreeMotionGate:
             self._in_contact, self._above, self._joint_above = False, 0, 0
             self._probation_until = t + cfg.max_contact_s
             start, self._contact_start = self._contact_start, -1
+            self._published = False
             return GateDecision(False, score, start, recalibrated=True)
-        return GateDecision(False, score, self._contact_start)
+        # with release_free, a released contact is published free (never trainable)
+        return GateDecision(cfg.release_free and not self._published, score,
+                            self._contact_start)

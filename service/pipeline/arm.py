@@ -12,7 +12,10 @@ Per sample:
    it never reaches the estimator or the training data. A gap longer than the estimator's
    ``max_gap_s`` restarts the LSTM state (``gap`` event).
 2. **estimate**: :class:`TwoStepEstimator.step_one` (step 1 + ``Corr`` + damped ``J^-T``).
-3. **gate**: :class:`FreeMotionGate` on the residual torque; the flag goes with the estimate.
+3. **gate**: :class:`FreeMotionGate` on the residual torque; the flag goes with the estimate
+   (a contact the gate has released is published free, but its samples stay out of training
+   and drift until the contact ends; a contact the calibration guard is in when the gate
+   takes over goes on as the gate's).
    The first ``calibration_s`` of a session are the contact-free calibration of step 2 that
    the two-step paper assumes (the surgeon moves the instrument in the patient without
    touching tissue): the correction net trains eagerly;
@@ -89,6 +92,7 @@ class ArmPipeline:
         self._next_reset: float | None = None
         self._calibration_end: float | None = None
         self._was_contact = False
+        self._was_guarded = False             # the last sample was the guard's to judge
         self._mismatch_said = False           # the model_mismatch event of this calibration
         self._last_setup: dict[str, Any] | None = None
         self.body_wall: list[float | None] = []    # stiffness per segment, the last round's
@@ -238,19 +242,27 @@ class ArmPipeline:
         if guarded:
             decision = self._guard_decision(index, t, out, msg.effort, events, calibrating,
                                             decision.score)
+        elif self._was_guarded and self._guard_refuses and self.guard.gate.in_contact:
+            # the gate takes over from the guard in the middle of a contact: it goes on
+            # with it (fresh, it would need a run of samples to find it, and train on them)
+            self.gate.take_over_contact(self.guard.gate.contact_start, t)
+        self._was_guarded = guarded
         if decision.recalibrated:
             events.append(Event(t, "gate_recalibrated", {"arm": self.arm,
                                                          "max_contact_s":
                                                          self.config.gate.max_contact_s}))
         self._contact_events(t, events)
-        if decision.free and not guarded and self.drift.update(t, out.external_torque):
+        # a released contact (the gate's release_free) is published free, but for drift and
+        # training it is still the contact's: only a sample of no contact is free there
+        free = decision.free and decision.contact_started < 0
+        if free and not guarded and self.drift.update(t, out.external_torque):
             self.counters.drifts += 1
             self._adapt_until = t + self.config.adaptation.eager_s
             events.append(Event(t, "drift", {"arm": self.arm,
                                              "level": self.drift.level(out.external_torque)}))
             if self.backend is not None:
                 self.backend.drift(t)
-        self._offer(t, out, msg.effort, decision.free, events, calibrating, decision.trainable,
+        self._offer(t, out, msg.effort, free, events, calibrating, decision.trainable,
                     decision.contact_started)
         est = Estimate(index, msg.stamp_ns, t, msg.position, msg.velocity, msg.effort,
                        out.wrench, out.predicted_torque, out.external_torque, decision.free,

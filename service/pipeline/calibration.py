@@ -125,8 +125,11 @@ class CalibrationGuard:
         only counts, in :attr:`last_free`)."""
         self._remember(t, residual)
         g = self.gate.update(index, t, residual)
-        self.last_free = g.free
+        # a contact the gate has released (published free, the contact's until it ends) is
+        # contact to the guard: its verdicts are about training
+        free = g.free and g.contact_started < 0
+        self.last_free = free
         if not self.refuses:
             return GateDecision(True, g.score, -1, trainable=True)
-        trainable = g.free if self.config.borderline_trains else g.trainable
-        return GateDecision(g.free, g.score, g.contact_started, trainable=trainable)
+        trainable = free if self.config.borderline_trains else g.trainable
+        return GateDecision(free, g.score, g.contact_started, trainable=trainable)

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from wrenchd.models.errors import DataError
-from wrenchd.models.gate import FreeMotionGate, GateConfig
+from wrenchd.models.gate import FreeMotionGate, GateConfig, warmup_mean_square
 
 RATE = 200.0
 
@@ -32,7 +32,7 @@ def test_a_contact_is_detected_and_not_chopped_by_a_dip():
     force[1900:2300] = 1.5
     force[2000:2010] = 0.0                             # the force crosses zero for 50 ms
     r[:, 2] += force
-    cfg = GateConfig(warmup_samples=500)
+    cfg = GateConfig(warmup_samples=500, release_free=False)   # the flag follows the hysteresis
     out = run(FreeMotionGate(cfg), r)
     free = np.array([d.free for d in out])
     assert free[1000:1500].mean() > 0.99
@@ -52,6 +52,89 @@ def test_a_contact_is_detected_and_not_chopped_by_a_dip():
     end = onset + int(np.argmax(free[onset:]))          # the first free sample after it
     # every sample of the contact, the last (that ends it) included, says where it began
     assert {d.contact_started for d in out[onset:end]} == {min(starts)}
+
+
+def dipped_contact() -> np.ndarray:
+    """Noise with 1.5 N on the insertion from sample 1500 to 2300 (z = 15 at the floor), the
+    force back to zero for 10 samples at 2000."""
+    r = noise(3000)
+    r[1500:2300, 2] += 1.5
+    r[2000:2010, 2] -= 1.5
+    return r
+
+
+def test_a_released_contact_is_published_free_and_kept_from_training():
+    """``release_free``: the published flag is free from a contact's first sample under the exit
+    bounds, but the samples stay the contact's (its onset, never trainable) until it ends."""
+    cfg = GateConfig(warmup_samples=500)
+    assert cfg.release_free                                     # the default
+    gate = FreeMotionGate(cfg)
+    out = run(gate, dipped_contact())
+    free = np.array([d.free for d in out])
+    started = np.array([d.contact_started for d in out])
+    trainable = np.array([d.trainable for d in out])
+    assert gate.contacts == 1                                   # one contact, the dip included
+    onset = 1500 + int(np.argmax(~free[1500:]))
+    assert onset < 1500 + cfg.enter_samples + 5
+    start = started[onset]
+    assert free[2001:2010].all()                                # the dip: published free,
+    assert not free[2010 + cfg.enter_samples + 2:2300].any()    # contact again on re-entry
+    end = 2300 + int(np.argmax(started[2300:] < 0))             # the first sample of no contact
+    assert free[2302:].all()                                    # published free at once,
+    assert end - 2300 >= cfg.exit_s * RATE - 2                  # the contact ends exit_s later
+    assert (started[onset:end] == start).all() and not trainable[onset:end].any()
+    assert trainable[end + 10:].mean() > 0.6                    # max |z| < 2 of six: 0.75
+    held = np.array([d.free for d in run(FreeMotionGate(cfg.model_copy(
+        update={"release_free": False})), dipped_contact())])
+    assert not held[onset:end - 1].any()                        # the flag held until the end
+
+
+def test_a_contact_in_the_warm_up_is_not_learnt_as_free_motion():
+    """A 1.5 s contact in the 5 s warm-up (yaw and pitch at 20 noise units, a wrist joint at
+    20): the robust warm-up's scale is the free motion's; the plain mean square learns the
+    contact and misses the next, weaker one (5 units on yaw and pitch for a second)."""
+    r = noise(3000)
+    r[200:500, [0, 1]] += 1.0
+    r[200:500, 3] += 0.05
+    r[1600:1800, [0, 1]] += 0.25
+    robust, plain = (FreeMotionGate(GateConfig(warmup_samples=1000, robust_warmup=on))
+                     for on in (True, False))
+    out_robust, out_plain = run(robust, r[:1000]), run(plain, r[:1000])
+    rms = np.sqrt(np.mean(noise(3000)[:1000] ** 2, axis=0))
+    # measured after the warm-up: 0.051 and 0.55 N m on yaw
+    np.testing.assert_allclose(robust.bounds()[1][:2], rms[:2], rtol=0.15)
+    assert (plain.bounds()[1][:2] > 5 * rms[:2]).all()
+    out_robust += [robust.update(i, i / RATE, r[i]) for i in range(1000, 3000)]
+    out_plain += [plain.update(i, i / RATE, r[i]) for i in range(1000, 3000)]
+    assert not any(d.free for d in out_robust[1640:1800])
+    assert np.mean([d.free for d in out_plain[1600:1800]]) > 0.9
+
+
+def test_warmup_mean_square_leaves_out_samples_far_out_on_any_joint():
+    rng = np.random.default_rng(3)
+    r = rng.normal(0.0, [1.0, 2.0, 0.5, 0.1, 0.1, 0.1], (5000, 6))
+    np.testing.assert_allclose(warmup_mean_square(r, 6.0), np.mean(r ** 2, axis=0), rtol=0.01)
+    spoiled = r.copy()
+    spoiled[:1500, [2, 4]] += [10.0, 2.0]                      # 30 % of the window in contact
+    ms = warmup_mean_square(spoiled, 6.0)
+    np.testing.assert_allclose(ms, np.mean(r[1500:] ** 2, axis=0), rtol=0.05)
+    assert ms[2] < 0.01 * np.mean(spoiled[:, 2] ** 2)
+
+
+def test_a_calibrated_gate_takes_over_a_contact_and_ends_it_by_its_hysteresis():
+    cfg = GateConfig(warmup_samples=500)
+    gate = FreeMotionGate(cfg)
+    with pytest.raises(DataError):
+        gate.take_over_contact(0, 0.0)                         # still warming up
+    r = noise(2000)
+    run(gate, r[:500])
+    gate.take_over_contact(420, 500 / RATE)
+    assert gate.in_contact and gate.contact_start == 420 and gate.contacts == 1
+    out = [gate.update(i, i / RATE, r[i]) for i in range(500, 2000)]
+    end = int(np.argmax([d.contact_started < 0 for d in out]))
+    assert cfg.exit_s * RATE - 2 <= end <= cfg.exit_s * RATE + 5   # quiet: over after exit_s
+    assert all(d.contact_started == 420 and not d.trainable for d in out[:end])
+    assert np.mean([d.trainable for d in out[end + 10:]]) > 0.6   # max |z| < 2 of six: 0.75
 
 
 def test_a_weak_contact_on_several_joints_is_caught_by_the_joint_score():
