@@ -54,7 +54,9 @@ warm-up). With ``robust_warmup`` the warm-up's scale is the RMS of its samples t
 ``warmup_trim_sigma`` robust sigmas (1.4826 x median |residual|) on every joint: a contact
 filling less than half the window hardly moves the median and loads its joints far beyond
 that bound, while the free-motion residual's heavy tail (friction spikes at a velocity
-reversal) mostly stays inside it. Learning after the warm-up is unchanged.
+reversal) mostly stays inside it. Learning after the warm-up is unchanged. It is off by
+default: ``train_sigma`` then applies to the smaller scale, and after a set-up change fewer
+free samples train, which costs the recovery more than the better contact recall gains.
 
 Cost: the squared residuals of learning samples are summed in NumPy and handed to the river
 statistics once per ``learn_block`` samples (as their mean, with the per-sample fading factor
@@ -118,10 +120,12 @@ class GateConfig(BaseModel):
     max_growth: float = Field(default=2.0, ge=1.0,
                               description="the scale never exceeds this x its warm-up value")
     robust_warmup: bool = Field(
-        default=True,
+        default=False,
         description="the warm-up's scale is the RMS of its samples within warmup_trim_sigma "
                     "robust sigmas (1.4826 x median |residual|) on every joint, not of all of "
-                    "them (a contact in the warm-up is not learnt as free motion)")
+                    "them (a contact in the warm-up is not learnt as free motion; off by "
+                    "default: the smaller scale also keeps more free samples out of training, "
+                    "which slows the recovery from a set-up change, docs/results.md)")
     warmup_trim_sigma: float = Field(
         default=6.0, gt=0.0,
         description="robust_warmup's bound [robust sigmas]")
