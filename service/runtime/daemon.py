@@ -51,7 +51,7 @@ from wrenchd.service.runtime.log_process import LogWriterProcess
 from wrenchd.service.runtime.scheduling import enter_realtime, normal_scheduling, realtime, realtime_below
 from wrenchd.service.pipeline.step1 import Step1, load_step1
 from wrenchd.service.runtime.arm import ROS_NODE_ID, ArmRuntime
-from wrenchd.service.runtime.plumbing import SWITCH_INTERVAL_S, Console
+from wrenchd.service.runtime.plumbing import SWITCH_INTERVAL_S, Console, gather
 from wrenchd.service.runtime.worker import WorkerProcess
 
 
@@ -226,10 +226,13 @@ class Daemon:
         take turns on the GIL, and each switch costs; interleaving keeps arms fair.
         """
         arms = self.arms
+        gather_s = self.settings.ring.gather_us / 1e6 if len(arms) > 1 else 0.0
         while True:
             stopping = self.stop.is_set()
             self.wake.wait(0.05)
             self.wake.clear()
+            if gather_s > 0.0 and not stopping:       # [ring] gather_us
+                gather([arm.ring for arm in arms], self.wake, gather_s, self.stop)
             for arm in arms:
                 if arm.setup_inbox:               # before the samples that came after them
                     arm.handle_setup()

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import math
 import queue
 import threading
+import time
 from collections import deque
 from typing import Any
 
@@ -27,6 +29,12 @@ class SampleRing:
         self._lock = threading.Lock()
         self.wake = wake if wake is not None else threading.Event()
         self.dropped = 0
+        self.last_put_s = -math.inf         # time.monotonic() of the latest put
+
+    @property
+    def pending(self) -> int:
+        """Items queued now (no lock: a glance, not a count to act on exactly)."""
+        return len(self._items)
 
     def put(self, item: tuple[int, bytes]) -> None:
         with self._lock:
@@ -34,6 +42,7 @@ class SampleRing:
                 self._items.popleft()
                 self.dropped += 1
             self._items.append(item)
+            self.last_put_s = time.monotonic()
         self.wake.set()
 
     def drain(self) -> list[tuple[int, bytes]]:
@@ -41,6 +50,36 @@ class SampleRing:
             items = list(self._items)
             self._items.clear()
         return items
+
+
+#: a ring whose latest sample is older than this is not waited for by :func:`gather` [s]
+STREAMING_S = 0.02
+
+
+def gather(rings: list[SampleRing], wake: threading.Event, window_s: float,
+           stop: threading.Event | None = None, streaming_s: float = STREAMING_S) -> bool:
+    """Wait up to ``window_s`` [s] until every streaming ring (one whose latest sample came
+    within ``streaming_s``) has a sample queued, so that the estimation thread's next pass
+    steps those arms together (step 1's cost is per pass, not per arm). Returns at once when
+    fewer than two rings stream, and early on ``stop``. ``wake`` is the rings' shared event
+    (set by every put), cleared here as the estimation thread clears it.
+
+    Returns:
+        True when every streaming ring has a sample queued (or fewer than two stream), False
+        when the window ran out or ``stop`` was set first.
+    """
+    now = time.monotonic()
+    streaming = [ring for ring in rings if now - ring.last_put_s < streaming_s]
+    if len(streaming) < 2:
+        return True
+    deadline = now + window_s
+    while not all(ring.pending for ring in streaming):
+        left = deadline - time.monotonic()
+        if left <= 0.0 or (stop is not None and stop.is_set()):
+            return False
+        wake.wait(left)
+        wake.clear()
+    return True
 
 
 def event_bytes(body: dict[str, Any]) -> bytes:

@@ -191,6 +191,12 @@ class RingConfig(BaseModel):
 
     capacity: int = Field(default=2000, ge=1,
                           description="queued samples; beyond, the oldest is dropped and counted")
+    gather_us: float = Field(
+        default=0.0, ge=0.0, le=5000.0,
+        description="how long the estimation thread, woken by one arm's sample, waits for "
+                    "the other streaming arms' samples so that one pass steps them together "
+                    "(step 1's cost is per pass, not per arm) [us]; 0: no wait. At most this "
+                    "much latency for CPU: docs/results.md has the measured trade")
 
 
 class CpuPlacement(BaseModel):

@@ -10,6 +10,7 @@ import time
 from contextlib import contextmanager
 
 import numpy as np
+import pytest
 import zenoh
 
 from wrenchd.adapters.mcap_session_reader import read_session_report
@@ -135,10 +136,12 @@ def test_a_burst_is_worked_off_in_batches_without_loss(tmp_path):
     ref.close()
 
 
-def test_two_arms_of_one_model_get_the_numbers_each_would_get_alone(tmp_path):
-    """Two arms fed together at 200 Hz (the daemon steps arms of one model as one batch):
-    every wrench comes back on each arm, equal to a one-arm pipeline's to float32 rounding
-    (the first second, before any adaptation round can change the nets)."""
+@pytest.mark.parametrize("gather_us", [0, 300])
+def test_two_arms_of_one_model_get_the_numbers_each_would_get_alone(tmp_path, gather_us):
+    """Two arms fed together at 200 Hz (the daemon steps arms of one model as one batch;
+    with ``[ring] gather_us`` it waits for the other arm's sample first): every wrench comes
+    back on each arm, equal to a one-arm pipeline's to float32 rounding (the first second,
+    before any adaptation round can change the nets)."""
     from wrenchd.adapters.messages import decode_joint_state, decode_wrench
     from wrenchd.models.estimator.pretrained import load_pretrained
     from wrenchd.service.pipeline import ArmPipeline, PipelineConfig
@@ -146,6 +149,7 @@ def test_two_arms_of_one_model_get_the_numbers_each_would_get_alone(tmp_path):
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     config = write_config(tmp_path / "wrenchd.toml", endpoint, "json", tmp_path / "logs",
                           arms=("PSM1", "PSM3"))
+    config.write_text(config.read_text() + f"[ring]\ngather_us = {gather_us}\n")
     sessions = {"PSM1": run_scenario("trocar", 2.0, 7).joint_states,
                 "PSM3": run_scenario("trocar", 2.0, 8).joint_states}
     payloads = {arm: [encode_joint_state("json", int(round(js.t[i] * 1e9)), js.names,
