@@ -54,9 +54,11 @@ warm-up). With ``robust_warmup`` the warm-up's scale is the RMS of its samples t
 ``warmup_trim_sigma`` robust sigmas (1.4826 x median |residual|) on every joint: a contact
 filling less than half the window hardly moves the median and loads its joints far beyond
 that bound, while the free-motion residual's heavy tail (friction spikes at a velocity
-reversal) mostly stays inside it. Learning after the warm-up is unchanged. It is off by
-default: ``train_sigma`` then applies to the smaller scale, and after a set-up change fewer
-free samples train, which costs the recovery more than the better contact recall gains.
+reversal) mostly stays inside it. Learning after the warm-up is unchanged. Which free samples
+may train (``train_sigma``) is still judged on the plain warm-up's scale, kept beside it and
+learning the same samples: on the narrower scale, fewer free samples trained after a set-up
+change and the recovery from it suffered. Off by default until more seeds confirm it
+(docs/results.md).
 
 Cost: the squared residuals of learning samples are summed in NumPy and handed to the river
 statistics once per ``learn_block`` samples (as their mean, with the per-sample fading factor
@@ -123,9 +125,9 @@ class GateConfig(BaseModel):
         default=False,
         description="the warm-up's scale is the RMS of its samples within warmup_trim_sigma "
                     "robust sigmas (1.4826 x median |residual|) on every joint, not of all of "
-                    "them (a contact in the warm-up is not learnt as free motion; off by "
-                    "default: the smaller scale also keeps more free samples out of training, "
-                    "which slows the recovery from a set-up change, docs/results.md)")
+                    "them (a contact in the warm-up is not learnt as free motion); which free "
+                    "samples may train is still judged on the plain warm-up's scale "
+                    "(docs/results.md)")
     warmup_trim_sigma: float = Field(
         default=6.0, gt=0.0,
         description="robust_warmup's bound [robust sigmas]")
@@ -203,6 +205,8 @@ class FreeMotionGate:
         self._seen = 0
         self._probation_until = -math.inf      # nothing trains before this (after a re-calibration)
         self._cap = np.full(N_JOINTS, np.inf)
+        self._msq_train = [stats.EWMean(fading_factor=self._block_fading) for _ in range(N_JOINTS)]
+        self._cap_train = np.full(N_JOINTS, np.inf)
         self._std = self._floor.copy()
         self._inv_var = (1.0 / self._std ** 2).tolist()
         self._in_contact = False
@@ -234,6 +238,8 @@ class FreeMotionGate:
             self._warm[j].update(float(rms[j]) ** 2)
             self._msq[j].update(float(rms[j]) ** 2)
             self._cap[j] = c.max_growth * float(rms[j])
+            self._msq_train[j].update(float(rms[j]) ** 2)
+            self._cap_train[j] = self._cap[j]
         self._seen = c.warmup_samples
         self._refresh()
 
@@ -258,6 +264,9 @@ class FreeMotionGate:
             self._msq[j] = stats.EWMean(fading_factor=self._block_fading)
             self._msq[j].update(float(rms[j]) ** 2)
             self._cap[j] = self.config.max_growth * float(rms[j])
+            self._msq_train[j] = stats.EWMean(fading_factor=self._block_fading)
+            self._msq_train[j].update(float(rms[j]) ** 2)
+            self._cap_train[j] = self._cap[j]
         self._refresh()
 
     @property
@@ -306,6 +315,12 @@ class FreeMotionGate:
             rms = np.minimum(np.sqrt(np.array([m.get() for m in self._msq])), self._cap)
         self._std = np.maximum(rms, self._floor)
         self._inv_var = (1.0 / self._std ** 2).tolist()
+        if self._seen >= self.config.warmup_samples and self._msq_train[0].get():
+            rt = np.minimum(np.sqrt(np.array([m.get() for m in self._msq_train])),
+                            self._cap_train)
+            self._inv_var_train = (1.0 / np.maximum(rt, self._floor) ** 2).tolist()
+        else:
+            self._inv_var_train = self._inv_var
 
     def _flush(self) -> None:
         """Hand the summed squares to the river statistics and refresh the scale."""
@@ -326,9 +341,14 @@ class FreeMotionGate:
                     self._msq[j] = stats.EWMean(fading_factor=self._block_fading)
                     self._msq[j].update(warm)
                     self._cap[j] = c.max_growth * max(math.sqrt(warm), self._floor[j])
+                    plain = self._warm[j].get()
+                    self._msq_train[j] = stats.EWMean(fading_factor=self._block_fading)
+                    self._msq_train[j].update(plain)
+                    self._cap_train[j] = c.max_growth * max(math.sqrt(plain), self._floor[j])
         else:
             for j in range(N_JOINTS):
                 self._msq[j].update(mean_sq[j])
+                self._msq_train[j].update(mean_sq[j])
         self._acc = [0.0] * N_JOINTS
         self._n_acc = 0
         self._refresh()
@@ -374,7 +394,9 @@ class FreeMotionGate:
             else:
                 if score < cfg.learn_sigma:
                     self._learn(zsq)
-                return GateDecision(True, score, -1, trainable=(score < cfg.train_sigma
+                tr = (math.sqrt(max(a * a * b for a, b in zip(r, self._inv_var_train)))
+                      if cfg.robust_warmup else score)      # the same scale without it
+                return GateDecision(True, score, -1, trainable=(tr < cfg.train_sigma
                                                                 and t >= self._probation_until))
         # in contact
         self._joint_held = self._joint_held + 1 if joint > cfg.joint_exit_sigma else 0
@@ -408,6 +430,9 @@ class FreeMotionGate:
                 self._msq[j] = stats.EWMean(fading_factor=self._block_fading)
                 self._msq[j].update(r[j] * r[j])
                 self._cap[j] = cfg.max_growth * max(abs(r[j]), self._floor[j])
+                self._msq_train[j] = stats.EWMean(fading_factor=self._block_fading)
+                self._msq_train[j].update(r[j] * r[j])
+                self._cap_train[j] = self._cap[j]
             self._refresh()
             self._in_contact, self._above, self._joint_above = False, 0, 0
             self._probation_until = t + cfg.max_contact_s

@@ -108,6 +108,12 @@ def test_a_contact_in_the_warm_up_is_not_learnt_as_free_motion():
     out_plain += [plain.update(i, i / RATE, r[i]) for i in range(1000, 3000)]
     assert not any(d.free for d in out_robust[1640:1800])
     assert np.mean([d.free for d in out_plain[1600:1800]]) > 0.9
+    # training is judged on the plain warm-up's scale: a free sample 3 robust sigmas out on
+    # yaw (over train_sigma there, under it on the plain scale) still trains
+    quiet = np.zeros(6)
+    quiet[0] = 3.0 * robust.bounds()[1][0]
+    d = robust.update(3000, 3000 / RATE, quiet)
+    assert d.free and d.score > robust.config.train_sigma and d.trainable
 
 
 def test_warmup_mean_square_leaves_out_samples_far_out_on_any_joint():
