@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import threading
 import time
 
@@ -48,12 +49,22 @@ def _stream(session, base: str, args: argparse.Namespace) -> int:
 
     done = threading.Event()
     seen = {"n": 0}
-    lock = threading.Lock()
+    lock = threading.RLock()       # counting and printing: one callback at a time
+
+    def say(line: str) -> None:
+        """One whole line at a time: zenoh calls the two subscribers on its own threads, and
+        print() writes a line and its end separately (two callbacks' lines would mix)."""
+        with lock:
+            sys.stdout.write(line + "\n")
+            sys.stdout.flush()
 
     def on_wrench(sample) -> None:
-        with lock:
-            seen["n"] += 1
-            n = seen["n"]
+        with lock:       # a wrench is printed before the next is counted: --count N prints N
+            _wrench(sample)
+
+    def _wrench(sample) -> None:
+        seen["n"] += 1
+        n = seen["n"]
         if args.count is not None and n > args.count:
             done.set()
             return
@@ -62,24 +73,22 @@ def _stream(session, base: str, args: argparse.Namespace) -> int:
                 stamp_ns, _frame, w, extra = decode_wrench(args.encoding,
                                                            sample.payload.to_bytes())
             except DataError as exc:
-                print(f"undecodable wrench: {exc}", flush=True)
+                say(f"undecodable wrench: {exc}")
                 return
             flag = ("free" if extra.get("free") else "contact") if "free" in extra else ""
-            print(f"t={stamp_ns / 1e9:9.3f} s  F=[{w[0]:6.2f} {w[1]:6.2f} {w[2]:6.2f}] N  "
-                  f"|F|={np.linalg.norm(w[:3]):5.2f} N  T=[{w[3]:6.3f} {w[4]:6.3f} {w[5]:6.3f}] N m"
-                  f"  {flag} {('v' + str(extra['model_version'])) if 'model_version' in extra else ''}",
-                  flush=True)
+            say(f"t={stamp_ns / 1e9:9.3f} s  F=[{w[0]:6.2f} {w[1]:6.2f} {w[2]:6.2f}] N  "
+                f"|F|={np.linalg.norm(w[:3]):5.2f} N  T=[{w[3]:6.3f} {w[4]:6.3f} {w[5]:6.3f}] N m"
+                f"  {flag} {('v' + str(extra['model_version'])) if 'model_version' in extra else ''}")
         if args.count is not None and n >= args.count:
             done.set()
 
     def on_event(sample) -> None:
-        print(f"event: {sample.payload.to_bytes().decode(errors='replace')}", flush=True)
+        say(f"event: {sample.payload.to_bytes().decode(errors='replace')}")
 
     subs = [session.declare_subscriber(f"{base}/wrenchd/measured_cf", on_wrench)]
     if args.events:
         subs.append(session.declare_subscriber(f"{base}/wrenchd/events", on_event))
-    print(f"wrenchd echo: listening on '{base}/wrenchd/measured_cf' ({args.encoding})",
-          flush=True)
+    say(f"wrenchd echo: listening on '{base}/wrenchd/measured_cf' ({args.encoding})")
     deadline = None if args.timeout is None else time.monotonic() + args.timeout
     try:
         while not done.wait(0.1):
