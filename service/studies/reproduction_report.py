@@ -243,6 +243,14 @@ def scored_markdown(results: dict[str, Any], command: str, wall_s: float) -> str
 
     def summary_rows(cells: dict[str, dict[str, Any]], floors: tuple[dict, dict],
                      with_contact: bool) -> list[list[str]]:
+        def tail(sc: dict[str, Any]) -> list[str]:
+            """The contact-only RMSE (with contact), peak and sensor cells of a row."""
+            out = [_force(sc["truth"]["contact_rmse"])] if with_contact else []
+            out.append(_force(sc["truth"]["peak"]))
+            if "sensor" in sc:
+                out.append(_force(sc["sensor"]["rmse"]))
+            return out
+
         rows = []
         for label, c in cells.items():
             sc = c["scores"]
@@ -251,12 +259,7 @@ def scored_markdown(results: dict[str, Any], command: str, wall_s: float) -> str
             if filt:
                 row.append(f"{_f(c['unfiltered_force_rmse'])} "
                            f"({_f(c['unfiltered_force_ratio_raw_floor'], 2)})")
-            if with_contact:
-                row.append(_force(sc["truth"]["contact_rmse"]))
-            row.append(_force(sc["truth"]["peak"]))
-            if "sensor" in sc:
-                row += [_force(sc["sensor"]["rmse"])]
-            rows.append(row)
+            rows.append(row + tail(sc))
         for label, f in (("oracle (raw)", floors[0]), ("oracle (filtered)", floors[1])):
             sc = f["scores"]
             row = [label, _force(sc["truth"]["rmse"]), "1.00" if label.endswith("(raw)") else
@@ -265,12 +268,7 @@ def scored_markdown(results: dict[str, Any], command: str, wall_s: float) -> str
                    _f(f["force_rmse"] / floors[1]["force_rmse"], 2)]
             if filt:
                 row.append("-")
-            if with_contact:
-                row.append(_force(sc["truth"]["contact_rmse"]))
-            row.append(_force(sc["truth"]["peak"]))
-            if "sensor" in sc:
-                row += [_force(sc["sensor"]["rmse"])]
-            rows.append(row)
+            rows.append(row + tail(sc))
         return rows
 
     def header(with_contact: bool, sensor: bool) -> list[str]:
