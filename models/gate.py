@@ -261,13 +261,17 @@ class FreeMotionGate:
         self._acc = [0.0] * N_JOINTS
         self._n_acc = 0
         for j in range(N_JOINTS):
-            self._msq[j] = stats.EWMean(fading_factor=self._block_fading)
-            self._msq[j].update(float(rms[j]) ** 2)
-            self._cap[j] = self.config.max_growth * float(rms[j])
-            self._msq_train[j] = stats.EWMean(fading_factor=self._block_fading)
-            self._msq_train[j].update(float(rms[j]) ** 2)
-            self._cap_train[j] = self._cap[j]
+            self._restart_scale(j, float(rms[j]) ** 2,
+                                self.config.max_growth * float(rms[j]))
         self._refresh()
+
+    def _restart_scale(self, j: int, mean_square: float, cap: float) -> None:
+        """Joint ``j``'s running scale, and the training scale beside it, start afresh at
+        ``mean_square`` [(N m)^2; N^2] with the bound ``cap`` [N m; N]."""
+        for msq in (self._msq, self._msq_train):
+            msq[j] = stats.EWMean(fading_factor=self._block_fading)
+            msq[j].update(mean_square)
+        self._cap[j] = self._cap_train[j] = cap
 
     @property
     def in_contact(self) -> bool:
@@ -427,12 +431,8 @@ class FreeMotionGate:
             self._acc = [0.0] * N_JOINTS
             self._n_acc = 0
             for j in range(N_JOINTS):                  # re-scale on the present level
-                self._msq[j] = stats.EWMean(fading_factor=self._block_fading)
-                self._msq[j].update(r[j] * r[j])
-                self._cap[j] = cfg.max_growth * max(abs(r[j]), self._floor[j])
-                self._msq_train[j] = stats.EWMean(fading_factor=self._block_fading)
-                self._msq_train[j].update(r[j] * r[j])
-                self._cap_train[j] = self._cap[j]
+                self._restart_scale(j, r[j] * r[j],
+                                    cfg.max_growth * max(abs(r[j]), self._floor[j]))
             self._refresh()
             self._in_contact, self._above, self._joint_above = False, 0, 0
             self._probation_until = t + cfg.max_contact_s
