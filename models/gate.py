@@ -60,6 +60,11 @@ learning the same samples: on the narrower scale, fewer free samples trained aft
 change and the recovery from it suffered. Off by default until more seeds confirm it
 (docs/results.md).
 
+A gate that starts judging (its warm-up over, or taking over from the pipeline's
+calibration guard, :meth:`FreeMotionGate.settle`) makes nothing trainable for ``exit_s``: a
+contact too weak for its enter bounds may be in progress then, and must show the quiet that
+ends a contact the gate found before its samples may train.
+
 Cost: the squared residuals of learning samples are summed in NumPy and handed to the river
 statistics once per ``learn_block`` samples (as their mean, with the per-sample fading factor
 compounded over the block, ``1 - (1 - alpha)^k``: the same exponential memory), and the scale
@@ -304,6 +309,13 @@ class FreeMotionGate:
         self._above = self._joint_above = self._joint_held = 0
         self.contacts += 1
 
+    def settle(self, t: float) -> None:
+        """This gate starts judging at time ``t`` [s] (its warm-up is over, or it takes
+        over from another judge): nothing is trainable before ``t + exit_s``. A contact in
+        progress that it cannot see (one too weak for its enter bounds) must show the quiet
+        that ends a contact it had found before its samples may train."""
+        self._probation_until = max(self._probation_until, t + self.config.exit_s)
+
     @property
     def calibrated(self) -> bool:
         return self._seen >= self.config.warmup_samples
@@ -381,6 +393,8 @@ class FreeMotionGate:
             if self._warm_buf is not None:
                 self._warm_buf[self._seen] = r
             self._learn(zsq)
+            if self._seen == cfg.warmup_samples:
+                self.settle(t)
             return GateDecision(False, score if self._seen > 1 else 0.0, -1)
         if not self._in_contact:
             self._above = self._above + 1 if score > cfg.enter_sigma else 0

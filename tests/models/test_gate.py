@@ -219,3 +219,22 @@ def test_nothing_trains_for_max_contact_s_after_a_recalibration():
     assert any(d.free for d in after[:window])              # published free again at once,
     assert not any(d.trainable for d in after[:window])     # but kept out of training,
     assert np.mean([d.trainable for d in after[window + 10:]]) > 0.5   # then trains again
+
+
+def test_a_fresh_gate_trains_nothing_for_exit_s():
+    """A contact too weak for the enter bounds may be going on when the warm-up ends (or the
+    gate takes over from the calibration guard): its samples are published free, but none
+    trains until the gate has seen ``exit_s`` of them, as at the end of a contact it found."""
+    cfg = GateConfig(warmup_samples=500, exit_s=0.5)
+    out = run(FreeMotionGate(cfg), noise(1000))
+    settled = 500 + int(cfg.exit_s * RATE) - 1                 # the warm-up ends at sample 499
+    assert all(d.free for d in out[500:settled]) and not any(d.trainable for d in out[500:settled])
+    assert np.mean([d.trainable for d in out[settled + 1:]]) > 0.6   # peak over 2 sigma: 1 in 4
+
+    gate = FreeMotionGate(cfg)
+    gate.seed(np.full(6, 0.05))
+    gate.settle(10.0)                                          # a hand-over at t = 10 s
+    r = noise(300)
+    assert not any(gate.update(i, 10.0 + i / RATE, x).trainable for i, x in enumerate(r[:99]))
+    assert np.mean([gate.update(i, 10.5 + i / RATE, x).trainable
+                    for i, x in enumerate(r[100:])]) > 0.6
