@@ -60,8 +60,8 @@ learning the same samples: on the narrower scale, fewer free samples trained aft
 change and the recovery from it suffered. Off by default until more seeds confirm it
 (docs/results.md).
 
-A gate that starts judging (its warm-up over, or taking over from the pipeline's
-calibration guard, :meth:`FreeMotionGate.settle`) makes nothing trainable for ``exit_s``: a
+A gate that starts judging (its warm-up over: in the pipeline, where it takes over from the
+calibration guard; :meth:`FreeMotionGate.settle`) makes nothing trainable for ``exit_s``: a
 contact too weak for its enter bounds may be in progress then, and must show the quiet that
 ends a contact the gate found before its samples may train.
 

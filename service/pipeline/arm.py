@@ -246,8 +246,6 @@ class ArmPipeline:
             # the gate takes over from the guard in the middle of a contact: it goes on
             # with it (fresh, it would need a run of samples to find it, and train on them)
             self.gate.take_over_contact(self.guard.gate.contact_start, t)
-        if self._was_guarded and not guarded:
-            self.gate.settle(t)                        # a fresh judge trains nothing at once
         self._was_guarded = guarded
         if decision.recalibrated:
             events.append(Event(t, "gate_recalibrated", {"arm": self.arm,
