@@ -49,13 +49,13 @@ def _free_port() -> int:
 def _config(path: Path, endpoint: str, arms: list[str], log_dir: Path,
             adaptation: bool = True, log: bool = True,
             pin: tuple[list[int], list[int]] | None = None,
-            realtime: int | str = "auto") -> None:
+            realtime: int | str = "auto", intake: str = "channel") -> None:
     lines = ['robot = "external"', "[cpus]", f"realtime_priority = {json.dumps(realtime)}"]
     if pin is not None:
         lines += [f"daemon = {pin[0]}", f"worker = {pin[1]}"]
     lines += ["[zenoh]", f'listen = ["{endpoint}"]', "[log]",
              f'directory = "{log_dir}"', f"enabled = {str(log).lower()}", "[ring]",
-             "capacity = 4000"]
+             "capacity = 4000", f'intake = "{intake}"']
     for arm in arms:
         lines += ["[[arms]]", f'name = "{arm}"', 'encoding = "json"',
                   "[arms.pipeline.adaptation]", f"enabled = {str(adaptation).lower()}"]
@@ -151,7 +151,7 @@ def _await_listening(daemon: subprocess.Popen, n_arms: int, timeout_s: float) ->
 def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 20.0,
                   warmup_s: float = 3.0, adaptation: bool = True,
                   log: bool = True, floor: bool = False, pin: bool = False,
-                  realtime: int | str = "auto") -> dict[str, Any]:
+                  realtime: int | str = "auto", intake: str = "channel") -> dict[str, Any]:
     """Run the benchmark; returns the result dictionary.
 
     Also samples the daemon's resident memory (with its worker) once a second: the soak run
@@ -163,7 +163,8 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
     and this process's publisher and subscriber take the same: a robot's publisher runs in the
     real-time class, and a bench left in the normal class would be measured waiting behind the
     machine's other work (under load, its p99 is several times the one with both in the
-    real-time class). The floor bench runs in the normal class."""
+    real-time class). The floor bench runs in the normal class. ``intake`` is the daemon's
+    ``[ring] intake`` (and the floor's)."""
     from wrenchd.adapters.sim.scenarios import run_scenario
     from wrenchd.adapters.sim.simulator import SimulatorConfig
 
@@ -190,9 +191,9 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
         placement = ([cpus[-1]], cpus[:-1])
         os.sched_setaffinity(0, placement[1])
     _config(workdir / "bench.toml", endpoint, arms, workdir / "logs", adaptation, log, placement,
-            realtime)
-    command = ([sys.executable, "-m", "wrenchd.service.bench.floor", "--listen", endpoint, "--arms",
-                *arms] if floor else
+            realtime, intake)
+    command = ([sys.executable, "-m", "wrenchd.service.bench.floor", "--listen", endpoint,
+                "--intake", intake, "--arms", *arms] if floor else
                [sys.executable, "-m", "wrenchd", "serve", "--config",
                 str(workdir / "bench.toml")])
     daemon = subprocess.Popen(
@@ -290,6 +291,7 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
     stolen_starts = np.array([a for a, _ in stolen])
     stolen_ends = np.array([b for _, b in stolen])
     latencies, per_arm = [], {}
+    latency_at: list[float] = []                  # send time [s] of each pooled latency
     clean: list[float] = []          # latencies during which the hypervisor stole nothing
     for arm in arms:
         lat, got = [], np.zeros(n, dtype=bool)
@@ -322,6 +324,7 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
                         "e2e_worst": [[round(lat_at[k], 3), round(lat[k] / 1e3, 1)]
                                       for k in np.argsort(lat)[::-1][:10]] if lat else []}
         latencies.extend(lat)
+        latency_at.extend(lat_at)
     pooled = np.array(latencies) if latencies else np.array([np.nan])
     ticks = [(t, k) for t, k in steal if k is not None and t >= warmup_s]
     hz = ticks_per_s()
@@ -333,6 +336,16 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
         "steal_window_s": STEAL_PERIOD_S,
         "e2e_p99_us_without_steal": float(np.percentile(clean, 99)) if clean else None,
         "samples_without_steal": len(clean)}
+    # the tail over time: a p99 made by a few long stalls reads differently from a wide
+    # spread everywhere (per second after the warm-up, all arms pooled: p99 and max [ms])
+    by_second: list[list[float]] = []
+    if latencies:
+        secs = np.floor(np.array(latency_at)).astype(int)
+        pooled_lat = np.array(latencies)
+        for sec in np.unique(secs):
+            w = pooled_lat[secs == sec]
+            by_second.append([int(sec), round(float(np.percentile(w, 99)) / 1e3, 2),
+                              round(float(w.max()) / 1e3, 1)])
     after_warmup = [mb for t, mb in rss if t >= warmup_s] or [np.nan]
     memory = {"rss_start_mb": round(after_warmup[0], 1), "rss_end_mb": round(after_warmup[-1], 1),
               "rss_max_mb": round(float(np.max(after_warmup)), 1),
@@ -354,6 +367,7 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
             "arms": n_arms, "target_rate_hz": rate_hz, "duration_s": duration_s,
             "warmup_s": warmup_s, "cpu_count": os.cpu_count(),
             "adaptation": adaptation and not floor, "mcap_log": log and not floor,
+            "intake": intake,
             "daemon": "bench floor (no estimation)" if floor else "wrenchd serve",
             "cpus": ({"daemon": placement[0], "worker_and_bench": placement[1]}
                      if placement else None),
@@ -361,4 +375,4 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
             "realtime_priority": None if floor else next(
                 (st.get("realtime_priority") for st in status.values()), realtime),
             "bench_realtime_priority": bench_priority,
-            "per_arm": per_arm}
+            "e2e_by_second": by_second, "per_arm": per_arm}

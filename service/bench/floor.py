@@ -1,9 +1,10 @@
 """The latency floor of ``wrenchd bench service`` on this machine (``wrenchd bench floor``).
 
-A stand-in for the daemon with the daemon's plumbing and none of its work: per arm a
-subscriber whose callback puts the payload in a :class:`~wrenchd.service.runtime.plumbing.SampleRing`, one
-thread that drains the rings, reads each joint state's stamp and publishes a zero wrench with
-that stamp. What ``bench service`` measures against it is what zenoh on loopback, the
+A stand-in for the daemon with the daemon's plumbing and none of its work: the daemon's
+intake (one :class:`~wrenchd.service.runtime.intake.ChannelIntake` for all arms, or with
+``--intake callback`` per arm a subscriber whose callback puts the payload in a
+:class:`~wrenchd.service.runtime.plumbing.SampleRing`), one thread that takes the samples,
+reads each joint state's stamp and publishes a zero wrench with that stamp. What ``bench service`` measures against it is what zenoh on loopback, the
 callback-to-thread hand-off, the GIL and this machine's scheduling cost before any
 estimation: the part of the daemon's latency that no faster estimator can remove.
 
@@ -22,9 +23,20 @@ import orjson
 
 from wrenchd.adapters.messages import encode_wrench
 from wrenchd.adapters.zenoh_io import ZenohConfig, open_session
+from wrenchd.service.runtime.intake import ChannelIntake
 from wrenchd.service.runtime.plumbing import SWITCH_INTERVAL_S, SampleRing
 
 _ZERO = np.zeros(6)
+
+
+def _answer(pub, items) -> None:
+    for item in items:
+        try:
+            stamp = orjson.loads(item[1])["header"]["stamp"]
+            stamp_ns = stamp["sec"] * 1_000_000_000 + stamp["nanosec"]
+        except (orjson.JSONDecodeError, KeyError, TypeError):
+            continue
+        pub.put(encode_wrench("json", stamp_ns, _ZERO))
 
 
 def _serve(rings: dict[str, SampleRing], pubs: dict, wake: threading.Event,
@@ -33,32 +45,43 @@ def _serve(rings: dict[str, SampleRing], pubs: dict, wake: threading.Event,
         wake.wait(0.05)
         wake.clear()
         for arm, ring in rings.items():
-            for _, payload in ring.drain():
-                try:
-                    stamp = orjson.loads(payload)["header"]["stamp"]
-                    stamp_ns = stamp["sec"] * 1_000_000_000 + stamp["nanosec"]
-                except (orjson.JSONDecodeError, KeyError, TypeError):
-                    continue
-                pubs[arm].put(encode_wrench("json", stamp_ns, _ZERO))
+            _answer(pubs[arm], ring.drain())
+
+
+def _serve_channel(intake: ChannelIntake, pubs: dict, stop: threading.Event) -> None:
+    while not stop.is_set():
+        taken = intake.take()
+        if taken is None:
+            return
+        for pub, items in zip(pubs.values(), taken):
+            _answer(pub, items)
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m wrenchd.service.bench.floor")
     parser.add_argument("--listen", required=True, help="zenoh endpoint to listen on")
     parser.add_argument("--arms", nargs="+", default=["PSM1"])
+    parser.add_argument("--intake", choices=["channel", "callback"], default="channel")
     args = parser.parse_args(argv)
     sys.setswitchinterval(SWITCH_INTERVAL_S)
     stop, wake = threading.Event(), threading.Event()
     signal.signal(signal.SIGINT, lambda *_: stop.set())
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     session = open_session(ZenohConfig(listen=[args.listen]))
-    rings = {arm: SampleRing(4000, wake) for arm in args.arms}
     pubs = {arm: session.declare_publisher(f"dvrk/{arm}/wrenchd/measured_cf")
             for arm in args.arms}
-    subs = [session.declare_subscriber(
-        f"dvrk/{arm}/measured_js",
-        lambda s, ring=rings[arm]: ring.put((0, s.payload.to_bytes()))) for arm in args.arms]
-    thread = threading.Thread(target=_serve, args=(rings, pubs, wake, stop), daemon=True)
+    intake, subs = None, []
+    if args.intake == "channel":
+        intake = ChannelIntake(session, [f"dvrk/{arm}/measured_js" for arm in args.arms],
+                               4000 * len(args.arms))
+        thread = threading.Thread(target=_serve_channel, args=(intake, pubs, stop), daemon=True)
+    else:
+        rings = {arm: SampleRing(4000, wake) for arm in args.arms}
+        subs = [session.declare_subscriber(
+            f"dvrk/{arm}/measured_js",
+            lambda s, ring=rings[arm]: ring.put((0, s.payload.to_bytes())))
+            for arm in args.arms]
+        thread = threading.Thread(target=_serve, args=(rings, pubs, wake, stop), daemon=True)
     thread.start()
     for arm in args.arms:
         print(f"bench floor: {arm} listening", flush=True)
@@ -68,7 +91,11 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         for sub in subs:
             sub.undeclare()
+        if intake is not None:
+            intake.tick()
         thread.join(timeout=5.0)
+        if intake is not None:
+            intake.close()
         for pub in pubs.values():
             pub.undeclare()
         session.close()

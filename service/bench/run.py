@@ -62,7 +62,7 @@ def bench_inference(duration_s: float = 60.0, seed: int = 3, warmup: int = 500) 
 
 def run(kind: str, json_path: str | None, duration_s: float, arms: int = 1,
         rate_hz: float = 1000.0, pin: bool = False, realtime: int | str = "auto",
-        recording: str | None = None) -> int:
+        recording: str | None = None, intake: str = "channel") -> int:
     """Run the bench ``kind``, print its result as JSON (with its provenance) and write it to
     ``json_path`` too when given."""
     os.environ.setdefault("OMP_NUM_THREADS", "1")
@@ -75,7 +75,8 @@ def run(kind: str, json_path: str | None, duration_s: float, arms: int = 1,
         from wrenchd.service.bench.daemon_latency import bench_service
 
         result = bench_service(n_arms=arms, rate_hz=rate_hz, duration_s=duration_s,
-                               floor=kind == "floor", pin=pin, realtime=realtime)
+                               floor=kind == "floor", pin=pin, realtime=realtime,
+                               intake=intake)
     elif kind == "replay":
         from wrenchd.service.bench.replay import run_replay_bench
 

@@ -30,7 +30,7 @@ def bench(args: argparse.Namespace) -> int:
     if args.duration is None:
         args.duration = DEFAULT_DURATION_S.get(args.kind, 60.0)
     return run(args.kind, args.json, args.duration, args.arms, args.rate, args.pin,
-               args.realtime, args.recording)
+               args.realtime, args.recording, args.intake)
 
 
 def register(sub) -> None:
@@ -60,4 +60,7 @@ def register(sub) -> None:
                    help="service/soak: the daemon's [cpus] realtime_priority, which this "
                         "bench's publisher and subscriber take too (default auto: "
                         "SCHED_FIFO where permitted)")
+    p.add_argument("--intake", choices=["channel", "callback"], default="channel",
+                   help="service/soak/floor: how the daemon takes its joint states ([ring] "
+                        "intake; default channel, the daemon's default)")
     p.set_defaults(func=bench)

@@ -47,7 +47,8 @@ class ArmRuntime:
 
     def __init__(self, cfg: ArmConfig, settings: ServiceSettings, session,
                  worker: WorkerProcess | None, wake: threading.Event,
-                 free_space: FreeSpaceModel, step1: Step1 | None = None) -> None:
+                 free_space: FreeSpaceModel, step1: Step1 | None = None,
+                 subscribe: bool = True) -> None:
         self.cfg, self.settings = cfg, settings
         self.step1 = step1
         self.name = cfg.name
@@ -83,7 +84,10 @@ class ArmRuntime:
         self.setup_dropped = 0          # notices pushed out of a full inbox (counted, reported)
         self._wake = wake
         self.sub_setup = session.declare_subscriber(self.keys["setup"], self._on_setup)
-        self.sub = session.declare_subscriber(self.keys["measured_js"], self._on_sample)
+        # its own subscriber (callback intake), or the daemon's channel serves it (``intake``)
+        self.sub = (session.declare_subscriber(self.keys["measured_js"], self._on_sample)
+                    if subscribe else None)
+        self.intake = None                  # the daemon's ChannelIntake, set by the daemon
         now = time.monotonic()
         self._next_status = now + settings.status_interval_s
         self._count_at, self._count_t = 0, now
@@ -140,7 +144,10 @@ class ArmRuntime:
             s["model"].update(self.step1.to_json())
             if self.step1.origin == "simulator" and self.settings.robot != "simulated":
                 s["model"]["warning"] = "a simulator-trained step 1 serves a real arm"
-        s["counters"]["dropped"] = self.ring.dropped
+        s["counters"]["dropped"] = self.ring.dropped if self.intake is None else self.intake.full
+        s["intake"] = ({"mode": "callback"} if self.intake is None else
+                       {"mode": "channel", "key": self.intake.pattern,
+                        "full": self.intake.full, "foreign": self.intake.foreign})
         s["counters"]["setup_dropped"] = self.setup_dropped
         s["rate_hz"] = self.rate_hz
         s["latency_us"] = percentiles(list(self.latency_us))
@@ -316,6 +323,8 @@ class ArmRuntime:
         """Undeclare in a safe order (the thread must have stopped)."""
         for entity in (self.sub, self.sub_setup, self.queryable, self.token, *self.ros_tokens,
                        self.pub_wrench, self.pub_events):
+            if entity is None:
+                continue
             try:
                 entity.undeclare()
             except Exception:  # noqa: BLE001 - closing must go on

@@ -2,11 +2,14 @@
 
 One zenoh session per daemon; per arm:
 
-* a subscriber on ``measured_js`` whose callback only stamps the payload with its arrival time
-  and puts it in a bounded ring (no decoding, inference or training in a zenoh callback); a
-  full ring drops its oldest sample and counts it (``dropped``);
-* the daemon's estimation thread (one for all arms, interleaving them) drains the ring
-  through the arm's :class:`ArmPipeline` (decode -> validate -> estimate -> gate), publishes
+* its joint states on ``measured_js``: by default one subscriber for all arms queues them
+  inside zenoh, without a Python callback per sample
+  (:class:`~wrenchd.service.runtime.intake.ChannelIntake`, ``[ring] intake``); else a
+  subscriber per arm whose callback only stamps the payload with its arrival time and puts it
+  in a bounded ring (no decoding, inference or training in a zenoh callback); either drops the
+  oldest sample when full (``dropped``);
+* the daemon's estimation thread (one for all arms, interleaving them) takes the queued
+  samples through the arm's :class:`ArmPipeline` (decode -> validate -> estimate -> gate), publishes
   the wrench and events, and hands inputs, estimates, events and a status snapshot to the log
   writer process (:mod:`wrenchd.service.runtime.log_process`), which formats and writes them to the arm's
   :class:`McapLog` (flushed every second, rotated) outside the daemon's GIL;
@@ -51,11 +54,14 @@ from wrenchd.service.runtime.log_process import LogWriterProcess
 from wrenchd.service.runtime.scheduling import enter_realtime, normal_scheduling, realtime, realtime_below
 from wrenchd.service.pipeline.step1 import Step1, load_step1
 from wrenchd.service.runtime.arm import ROS_NODE_ID, ArmRuntime
+from wrenchd.service.runtime.intake import ChannelIntake, key_pattern
 from wrenchd.service.runtime.plumbing import SWITCH_INTERVAL_S, Console, gather
 from wrenchd.service.runtime.worker import WorkerProcess
 
 
 LINK_CHECK_S = 0.5      # how often the session's routers and peers are counted [s]
+TICK_S = 0.05           # with the channel intake: how often the estimation thread is woken
+                        # when no sample comes (housekeeping, notices, the stop) [s]
 BATCH = 32              # samples of one arm estimated before the next arm's turn
 ROBOT_STOP_S = 10.0     # how long a simulated robot may take to end after SIGINT [s]
 
@@ -96,6 +102,7 @@ class Daemon:
         self.log_writer: LogWriterProcess | None = None
         self.console: Console | None = None
         self.live = None                            # Foxglove live view ([foxglove] port)
+        self.intake: ChannelIntake | None = None    # [ring] intake = "channel"
         self.realtime_priority: int | None = None
         self._links: tuple[int, int] | None = None       # (routers, peers) last counted
         self._links_next = 0.0
@@ -148,10 +155,18 @@ class Daemon:
                 self.ros_node = self.session.liveliness().declare_token(node_token(  # entities
                     s.ros.domain_id, str(self.session.info.zid()), ROS_NODE_ID, s.ros.node,
                     s.ros.namespace))
+            channel = self._channel_intake()
             for cfg in s.arms:
                 worker = self.worker if cfg.name in adapt else None
                 self.arms.append(ArmRuntime(cfg, s, self.session, worker, self.wake,
-                                            self.models[cfg.name], self.step1[cfg.name]))
+                                            self.models[cfg.name], self.step1[cfg.name],
+                                            subscribe=not channel))
+            if channel:
+                self.intake = ChannelIntake(
+                    self.session, [arm.keys["measured_js"] for arm in self.arms],
+                    s.ring.capacity * len(self.arms))
+                for arm in self.arms:
+                    arm.intake = self.intake
         except Exception:
             normal_scheduling()
             self.close()
@@ -201,6 +216,22 @@ class Daemon:
         if self.live is not None:
             print(f"wrenchd: Foxglove live view on {self.live.url}", flush=True)
 
+    def _channel_intake(self) -> bool:
+        """Whether the arms' joint states come through one channel (``[ring] intake``): asked
+        for, and one key expression fits every arm's key (else the callback intake, said on
+        stderr)."""
+        s = self.settings
+        if s.ring.intake != "channel":
+            return False
+        keys = [cfg.keys.resolve(s.prefix, cfg.name, s.ros.domain_id)["measured_js"]
+                for cfg in s.arms]
+        if key_pattern(keys) is None:
+            print(f"wrenchd: no single key expression fits the arms' joint-state keys {keys}; "
+                  f"taking them through a callback each ([ring] intake = \"callback\")",
+                  file=sys.stderr, flush=True)
+            return False
+        return True
+
     def _realtime_priority(self) -> int | None:
         """The SCHED_FIFO priority of the sample path, None for the normal class; an explicit
         priority this process may not take is refused (:class:`ConfigError`), ``auto`` falls
@@ -227,16 +258,26 @@ class Daemon:
         """
         arms = self.arms
         gather_s = self.settings.ring.gather_us / 1e6 if len(arms) > 1 else 0.0
+        intake = self.intake
         while True:
             stopping = self.stop.is_set()
-            self.wake.wait(0.05)
-            self.wake.clear()
-            if gather_s > 0.0 and not stopping:       # [ring] gather_us
-                gather([arm.ring for arm in arms], self.wake, gather_s, self.stop)
+            if intake is not None:                   # blocks until a sample or a tick
+                taken = intake.take()
+                if taken is None:
+                    break
+                stopping = self.stop.is_set()        # the stop's tick: this pass is the last
+            else:
+                self.wake.wait(0.05)
+                self.wake.clear()
+                if gather_s > 0.0 and not stopping:       # [ring] gather_us
+                    gather([arm.ring for arm in arms], self.wake, gather_s, self.stop)
             for arm in arms:
                 if arm.setup_inbox:               # before the samples that came after them
                     arm.handle_setup()
-            queued = [(arm, arm.ring.drain()) for arm in arms]
+            if intake is not None:
+                queued = list(zip(arms, taken))
+            else:
+                queued = [(arm, arm.ring.drain()) for arm in arms]
             depth = max((len(items) for _, items in queued), default=0)
             # arms take turns, at most BATCH samples each (samples that arrive meanwhile set
             # ``wake``); a backlog of one arm goes through its pipeline in one pass
@@ -309,7 +350,11 @@ class Daemon:
         try:
             self.start()
             deadline = None if duration_s is None else time.monotonic() + duration_s
-            while not self.stop.wait(0.2):
+            # the channel intake's estimation thread sleeps in zenoh: woken here when idle
+            wait_s = TICK_S if self.intake is not None else 0.2
+            while not self.stop.wait(wait_s):
+                if self.intake is not None:
+                    self.intake.tick()
                 if deadline is not None and time.monotonic() >= deadline:
                     break
         finally:
@@ -324,13 +369,19 @@ class Daemon:
             if robot.poll() is None:
                 robot.send_signal(signal.SIGINT)
         for arm in self.arms:
+            if arm.sub is None:              # the channel intake's, undeclared below
+                continue
             try:
                 arm.sub.undeclare()          # no callback after this point
             except Exception:  # noqa: BLE001
                 pass
         self.wake.set()
+        if self.intake is not None:
+            self.intake.tick()                     # the thread takes what is queued and stops
         if self.thread is not None and self.thread.is_alive():
             self.thread.join(timeout=10.0)
+        if self.intake is not None:                # no more samples after this point
+            self.intake.close()
         if self.worker is not None:                # asked now, waited for last: its exit
             self.worker.stop()                     # overlaps the logs' closing
         for arm in self.arms:

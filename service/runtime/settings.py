@@ -185,18 +185,28 @@ class SimulatorSettings(BaseModel):
 
 
 class RingConfig(BaseModel):
-    """Backpressure between the zenoh callback and the estimation thread of each arm."""
+    """How joint states reach the estimation thread, and the backpressure on the way."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
+    intake: Literal["channel", "callback"] = Field(
+        default="channel",
+        description="channel: one zenoh subscriber for all arms queues the samples inside "
+                    "zenoh, and the estimation thread takes them when it is ready (no Python "
+                    "callback per sample; the arms' keys must fit one key expression); "
+                    "callback: a Python callback per sample puts it in the arm's ring "
+                    "(service/runtime/intake.py says what each costs)")
     capacity: int = Field(default=2000, ge=1,
-                          description="queued samples; beyond, the oldest is dropped and counted")
+                          description="queued samples per arm; beyond, the oldest is dropped "
+                                      "(callback: each counted; channel: each pass that found "
+                                      "the channel full is counted)")
     gather_us: float = Field(
         default=0.0, ge=0.0, le=5000.0,
         description="how long the estimation thread, woken by one arm's sample, waits for "
                     "the other streaming arms' samples so that one pass steps them together "
                     "(step 1's cost is per pass, not per arm) [us]; 0: no wait. At most this "
-                    "much latency for CPU: docs/results.md has the measured trade")
+                    "much latency for CPU (callback intake only): docs/results.md has the "
+                    "measured trade")
 
 
 class CpuPlacement(BaseModel):

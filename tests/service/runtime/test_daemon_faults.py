@@ -136,12 +136,15 @@ def test_a_burst_is_worked_off_in_batches_without_loss(tmp_path):
     ref.close()
 
 
-@pytest.mark.parametrize("gather_us", [0, 300])
-def test_two_arms_of_one_model_get_the_numbers_each_would_get_alone(tmp_path, gather_us):
-    """Two arms fed together at 200 Hz (the daemon steps arms of one model as one batch;
-    with ``[ring] gather_us`` it waits for the other arm's sample first): every wrench comes
-    back on each arm, equal to a one-arm pipeline's to float32 rounding (the first second,
-    before any adaptation round can change the nets)."""
+@pytest.mark.parametrize("intake, gather_us", [("channel", 0), ("callback", 0),
+                                               ("callback", 300)])
+def test_two_arms_of_one_model_get_the_numbers_each_would_get_alone(tmp_path, intake,
+                                                                    gather_us):
+    """Two arms fed together at 200 Hz, through the one channel or a callback each (the
+    daemon steps arms of one model as one batch; with ``[ring] gather_us`` it waits for the
+    other arm's sample first): every wrench comes back on each arm, equal to a one-arm
+    pipeline's to float32 rounding (the first second, before any adaptation round can change
+    the nets)."""
     from wrenchd.adapters.messages import decode_joint_state, decode_wrench
     from wrenchd.models.estimator.pretrained import load_pretrained
     from wrenchd.service.pipeline import ArmPipeline, PipelineConfig
@@ -149,7 +152,8 @@ def test_two_arms_of_one_model_get_the_numbers_each_would_get_alone(tmp_path, ga
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     config = write_config(tmp_path / "wrenchd.toml", endpoint, "json", tmp_path / "logs",
                           arms=("PSM1", "PSM3"))
-    config.write_text(config.read_text() + f"[ring]\ngather_us = {gather_us}\n")
+    config.write_text(config.read_text()
+                      + f"[ring]\nintake = \"{intake}\"\ngather_us = {gather_us}\n")
     sessions = {"PSM1": run_scenario("trocar", 2.0, 7).joint_states,
                 "PSM3": run_scenario("trocar", 2.0, 8).joint_states}
     payloads = {arm: [encode_joint_state("json", int(round(js.t[i] * 1e9)), js.names,
