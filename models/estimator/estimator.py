@@ -409,6 +409,8 @@ class TwoStepEstimator:
         external = tau_measured - predicted
         if n >= 4:
             wrench = self.wrench_map.wrench_batch(q, external)
+        elif n == 1:                                    # the streaming case: no stacking
+            wrench = self.wrench_map.wrench(q[0], external[0])[None]
         else:
             wrench = np.stack([self.wrench_map.wrench(q[i], external[i]) for i in range(n)])
         return [EstimatorOutput(float(t[i]), predicted[i], external[i], wrench[i],
