@@ -6,7 +6,8 @@ motion; a contact adds ``J^T w`` on top. A :class:`FreeMotionGate` on that resid
 the RMSE instead of a warm-up that could itself be spent in contact, judges from the first
 sample (:class:`~wrenchd.service.pipeline.config.CalibrationGuardConfig`).
 
-Robust statistics over the window follow: each second from 2 s into the window on, the
+Robust statistics over the window (at most one sample per 5 ms of it) follow: each second
+from 2 s into the window on, the
 residual's robust level per joint (1.4826 x the median absolute residual: a normal RMS
 that the contacts, as long as they fill less than half of the window, hardly move) sets the
 guard's scale to ``robust_factor`` x that level, never below the seeded scale and never above
@@ -36,6 +37,12 @@ from wrenchd.service.pipeline.config import CalibrationGuardConfig, PipelineConf
 ROBUST_AFTER_S, ROBUST_EVERY_S = 2.0, 1.0
 #: the fit ratio is first judged this long after the calibration's start [s]
 MISMATCH_AFTER_S = 5.0
+#: the window keeps at most one sample per this much time [s] (with a tolerance for jitter):
+#: every sample at the 200 Hz of a dVRK recording, one in five at 1 kHz. The robust level's
+#: quantiles over a minute of 1 kHz samples cost several milliseconds once a second, a stall
+#: every arm's estimates wait through; neighbouring samples add next to nothing to them.
+WINDOW_EVERY_S = 0.005
+_WINDOW_TOLERANCE_S = 0.0005
 #: median |x| of a zero-mean normal is 0.6745 sigma, its lower quartile 0.3186 sigma
 MAD_TO_RMS, Q25_TO_RMS = 1.4826, 1.0 / 0.31864
 
@@ -86,6 +93,7 @@ class CalibrationGuard:
         self.mismatch = False
         self._window = np.empty((1024, N_JOINTS))
         self._n = 0
+        self._kept_t = -np.inf
         self._t0: float | None = None
         self._next_t = 0.0
 
@@ -95,10 +103,12 @@ class CalibrationGuard:
         return None if self.ratios is None else float(self.ratios.max())
 
     def _remember(self, t: float, residual: np.ndarray) -> None:
-        if self._n == len(self._window):
-            self._window = np.concatenate([self._window, np.empty_like(self._window)])
-        self._window[self._n] = np.abs(residual)
-        self._n += 1
+        if t - self._kept_t >= WINDOW_EVERY_S - _WINDOW_TOLERANCE_S:
+            self._kept_t = t
+            if self._n == len(self._window):
+                self._window = np.concatenate([self._window, np.empty_like(self._window)])
+            self._window[self._n] = np.abs(residual)
+            self._n += 1
         if self._t0 is None:
             self._t0 = t
             self._next_t = t + ROBUST_AFTER_S

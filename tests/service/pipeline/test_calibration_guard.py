@@ -175,6 +175,24 @@ def test_robust_level_lets_a_set_up_the_validation_never_saw_calibrate():
     assert not robust.mismatch and robust.ratio == pytest.approx(3.0, rel=0.25)
 
 
+def test_the_window_holds_a_sample_per_5_ms_whatever_the_rate():
+    """At 1 kHz the robust level is taken over one sample in five (the quantiles of a
+    minute of samples would stall estimation once a second); at 200 Hz, with jitter, over
+    every one: the same window either way."""
+    residual = 3.0 * HELD_OUT * _smooth(np.random.default_rng(2), 5000, width=500)
+    fast = _guard()
+    for i, r in enumerate(residual):
+        fast.judge(i, i / 1000.0, r)
+    assert fast._n == 1000
+    jitter = np.random.default_rng(3).uniform(-2e-4, 2e-4, 1000)
+    slow = _guard()
+    for i in range(1000):
+        slow.judge(i, i / 200.0 + jitter[i], residual[5 * i])
+    every_fifth = np.abs(residual[::5])
+    np.testing.assert_array_equal(fast._window[:fast._n], every_fifth)
+    np.testing.assert_array_equal(slow._window[:slow._n], every_fifth)
+
+
 def test_misfit_joint_is_a_mismatch_and_follows_its_own_level():
     rng = np.random.default_rng(1)
     n = 4000
