@@ -51,7 +51,7 @@ from wrenchd.models.series import N_JOINTS, JointSample
 from wrenchd.service.pipeline.calibration import CalibrationGuard
 from wrenchd.service.pipeline.adaptation import AdaptationBackend, InlineAdaptation, initial_corr
 from wrenchd.service.pipeline.config import PipelineConfig
-from wrenchd.service.pipeline.delay_line import DelayLine, offer_rows
+from wrenchd.service.pipeline.delay_line import DelayLine, Released, offer_rows
 from wrenchd.service.pipeline.records import Counters, Estimate, Event
 from wrenchd.service.pipeline.validation import SampleValidator
 from wrenchd.models.adaptation import RoundResult
@@ -358,7 +358,8 @@ class ArmPipeline:
         if self.policy == "drift-triggered" and t > self._adapt_until and not calibrating:
             return
         if self.policy == "ungated" or (calibrating and not self._guard_refuses):
-            now = [(t, out.window, out.step1_torque, effort)]
+            now = Released(np.array([t]), out.window[None], out.step1_torque[None],
+                           effort[None])
             self.counters.offered += offer_rows(self.backend, now, self.on_offer)
             return
         if not free:
