@@ -60,6 +60,11 @@ learning the same samples: on the narrower scale, fewer free samples trained aft
 change and the recovery from it suffered. Off by default until more seeds confirm it
 (docs/results.md).
 
+A prior scale (``reset(prior=...)``: the pipeline's calibration, the residual RMS of the
+samples its guard called free) keeps the warm-up's scale within 1 and ``max_growth`` times it:
+a warm-up of a few seconds that falls on a contact would otherwise start the gate two to four
+times too wide, for the minute or more the slow scale takes to come down.
+
 A gate that starts judging (its warm-up over: in the pipeline, where it takes over from the
 calibration guard; :meth:`FreeMotionGate.settle`) makes nothing trainable for ``exit_s``: a
 contact too weak for its enter bounds may be in progress then, and must show the quiet that
@@ -199,8 +204,25 @@ class FreeMotionGate:
         self._block_fading = 1.0 - (1.0 - c.alpha) ** c.learn_block
         self.reset()
 
-    def reset(self) -> None:
-        """Forget the statistics (a new set-up)."""
+    def reset(self, prior: np.ndarray | None = None) -> None:
+        """Forget the statistics (a new set-up).
+
+        Args:
+            prior: (6,) a free-motion residual RMS known from elsewhere [N m; N on
+                insertion] (the pipeline's calibration): the warm-up's scale is kept within
+                1 and ``max_growth`` times it (floored by ``min_std``), so a warm-up that
+                falls on a contact cannot start the gate several times too wide, nor a
+                quiet one too narrow.
+        """
+        if prior is None:
+            self._prior = None
+        else:
+            prior = np.asarray(prior, dtype=float)
+            if prior.shape != (N_JOINTS,) or not np.isfinite(prior).all():
+                raise DataError(f"a gate's prior scale needs {N_JOINTS} finite values, "
+                                f"got {prior!r}")
+            lo = np.maximum(prior, self._floor)
+            self._prior = (lo ** 2, (self.config.max_growth * lo) ** 2)
         self._msq = [stats.EWMean(fading_factor=self._block_fading) for _ in range(N_JOINTS)]
         self._warm = [stats.Mean() for _ in range(N_JOINTS)]     # plain mean while warming up
         c = self.config
@@ -354,10 +376,13 @@ class FreeMotionGate:
                            else warmup_mean_square(self._warm_buf, c.warmup_trim_sigma))
                 for j in range(N_JOINTS):
                     warm = self._warm[j].get() if trimmed is None else float(trimmed[j])
+                    plain = self._warm[j].get()
+                    if self._prior is not None:
+                        lo, hi = self._prior[0][j], self._prior[1][j]
+                        warm, plain = min(max(warm, lo), hi), min(max(plain, lo), hi)
                     self._msq[j] = stats.EWMean(fading_factor=self._block_fading)
                     self._msq[j].update(warm)
                     self._cap[j] = c.max_growth * max(math.sqrt(warm), self._floor[j])
-                    plain = self._warm[j].get()
                     self._msq_train[j] = stats.EWMean(fading_factor=self._block_fading)
                     self._msq_train[j].update(plain)
                     self._cap_train[j] = c.max_growth * max(math.sqrt(plain), self._floor[j])

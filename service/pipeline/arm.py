@@ -94,6 +94,8 @@ class ArmPipeline:
         self._was_contact = False
         self._was_guarded = False             # the last sample was the guard's to judge
         self._mismatch_said = False           # the model_mismatch event of this calibration
+        self._prior_sq = np.zeros(N_JOINTS)   # summed squared residual of the guard's free
+        self._prior_n = 0                     # samples late in the calibration (gate's prior)
         self._last_setup: dict[str, Any] | None = None
         self.body_wall: list[float | None] = []    # stiffness per segment, the last round's
 
@@ -283,6 +285,10 @@ class ArmPipeline:
         decision = guard.judge(index, t, effort - out.step1_torque)._replace(score=score)
         if calibrating and not guard.last_free:
             self.counters.calibration_contact += 1
+        elif calibrating and (t >= self._calibration_end
+                              - self.config.calibration_guard.gate_prior_s):
+            self._prior_sq += out.external_torque * out.external_torque
+            self._prior_n += 1
         if guard.mismatch and not self._mismatch_said:
             self._mismatch_said = True
             ratios = guard.ratios
@@ -296,6 +302,8 @@ class ArmPipeline:
         if self._calibration_end is None:
             self._calibration_end = t + self.config.calibration_s
             self._mismatch_said = False
+            self._prior_sq[:] = 0.0
+            self._prior_n = 0
             if self.guard is not None:
                 self.guard.start()                      # a fresh window, the seeded scale
             if self.config.calibration_s > 0:
@@ -309,12 +317,13 @@ class ArmPipeline:
             return True
         self._calibration_end = np.inf
         if self.config.calibration_s > 0:
-            self.gate.reset()                           # re-learn on the calibrated residual
+            prior = self._reset_gate()
             c = self.counters
             events.append(Event(t, "calibrated", {"arm": self.arm,
                                                   "model_version": self.model_version,
                                                   "samples": c.calibration_samples,
                                                   "contact": c.calibration_contact,
+                                                  "gate_prior_samples": prior,
                                                   **self._fit()}))
             if self.calibration_contaminated:
                 events.append(Event(t, "calibration_contaminated", {
@@ -322,6 +331,18 @@ class ArmPipeline:
                     "contact": c.calibration_contact,
                     "fraction": c.calibration_contact / max(c.calibration_samples, 1)}))
         return False
+
+    def _reset_gate(self) -> int:
+        """At the calibration's end, reset the free-motion gate to warm up on the calibrated
+        residual, its warm-up scale bounded by the RMS of the residual over the guard's free
+        samples of the calibration's last ``gate_prior_s`` (not with no guard, a guard that
+        only warns, or too few such samples); how many samples bound it (0: none)."""
+        n = self._prior_n
+        if not self._guard_refuses or n == 0 or n < self.gate.config.warmup_samples:
+            self.gate.reset()
+            return 0
+        self.gate.reset(prior=np.sqrt(self._prior_sq / n))
+        return n
 
     def _fit(self) -> dict[str, Any]:
         """The calibration guard's verdict on the step-1 model's fit (status and events)."""

@@ -107,6 +107,14 @@ class CalibrationGuardConfig(BaseModel):
         description="refuse: a sample the guard calls free but over the gate's train_sigma "
                     "trains all the same (the calibration is there to learn the residual the "
                     "step-1 model leaves, its largest parts included)")
+    gate_prior_s: float = Field(
+        default=30.0, ge=0.0,
+        description="refuse: when the calibration ends, the free-motion gate warms up again "
+                    "with its scale kept within 1 and its max_growth times the RMS of the "
+                    "residual over the samples the guard called free in the calibration's "
+                    "last gate_prior_s [s] (a warm-up of a few seconds that falls on a contact "
+                    "would start the gate several times too wide); 0, or fewer such samples "
+                    "than the gate's warm-up: the warm-up alone")
     warn_fraction: float = Field(
         default=0.3, ge=0.0, le=1.0,
         description="a calibration whose samples the guard called contact more than this "

@@ -238,3 +238,22 @@ def test_a_fresh_gate_trains_nothing_for_exit_s():
     assert not any(gate.update(i, 10.0 + i / RATE, x).trainable for i, x in enumerate(r[:99]))
     assert np.mean([gate.update(i, 10.5 + i / RATE, x).trainable
                     for i, x in enumerate(r[100:])]) > 0.6
+
+
+def test_a_prior_keeps_the_warm_up_scale_within_one_and_max_growth_times_it():
+    """A warm-up on a contact would start the gate wide, one on a quiet stretch narrow: with
+    a prior (the calibration's free-motion RMS) the warm-up's scale stays within it."""
+    prior = np.array([0.05, 0.05, 0.1, 0.0025, 0.0025, 0.0025])
+    cfg = GateConfig(warmup_samples=500)
+    loud = noise(600, std=0.5)                       # ten times the prior's level
+    quiet = noise(600, std=0.005)
+    for r, expect in ((loud, cfg.max_growth * prior), (quiet, prior)):
+        gate = FreeMotionGate(cfg)
+        gate.reset(prior=prior)
+        run(gate, r)
+        np.testing.assert_allclose(gate.bounds()[1], np.maximum(expect, cfg.min_std), rtol=0.05)
+        free = FreeMotionGate(cfg)                    # without the prior: the warm-up's own
+        run(free, r)
+        assert not np.allclose(free.bounds()[1], gate.bounds()[1], rtol=0.3)
+    with pytest.raises(DataError):
+        FreeMotionGate(cfg).reset(prior=np.full(5, 0.1))

@@ -85,15 +85,20 @@ def test_contact_never_reaches_training_on_a_contact_session(seal):
     offered: list[float] = []
     p.on_offer = lambda ts: offered.extend(ts.tolist())
     flags = np.zeros(len(js), bool)
+    calibrated = []
     for i in range(len(js)):
-        est, _ = p.process(msg(js, i))
+        est, events = p.process(msg(js, i))
         flags[i] = est.free
+        calibrated += [e for e in events if e.kind == "calibrated"]
+    # the gate's warm-up after the calibration is bounded by the guard's free samples of its
+    # last gate_prior_s (30 s: the whole 20 s calibration here, less what the guard refused)
+    assert len(calibrated) == 1
+    assert 3000 < calibrated[0].detail["gate_prior_samples"] <= 4000
     idx = np.searchsorted(js.t, offered)
     assert truth.in_contact[js.t > 25.0].sum() > 1000    # the session has contacts to refuse
-    # measured 4947 (2767 of the calibration's 4000: the guard's refusals and the delay
-    # line's margins around them); 3708 with the gate's robust_warmup on (the warm-up's
-    # contact left out of the scale: the insertion's 3x narrower, fewer samples under
-    # train_sigma)
+    # measured 4374 (2767 of the calibration's 4000: the guard's refusals and the delay
+    # line's margins around them); 4884 with the gate's warm-up unbounded
+    # (calibration_guard.gate_prior_s = 0), its scale wider and fewer contacts found
     assert len(offered) > 4000
     assert not truth.in_contact[idx].any()
     # the gate sees strong contacts (weak, lateral ones at shallow insertion can sit under its
