@@ -20,7 +20,13 @@ process, :mod:`wrenchd.service.runtime.worker`) and by replay (inline, in simula
   (the default) a drift is also taken for an unannounced pressure change at its detection
   (less ``drift_lead_s``), and the buffer is carried over as below: the body wall tracker
   measures the stiffness on either side, so a drift that changed nothing shifts the rows by
-  about nothing.
+  about nothing. A drift detected while the rounds are still eager for the latest change
+  (announced or detected; its ``eager_s``, extended by its first carry-over) is taken for that
+  change's, not a new one: a segment started then is fitted on a bin or two of free motion,
+  and on ``insufflation-change`` seed 6 (adaptation seed 2, announced) one such, 31 s after
+  the notice, was fitted at 4820 N/m against 1285 N/m and carried the whole buffer and
+  held-out set by the difference (the net ended 6-10 N off, the gate called all free motion
+  contact, and nothing could train it back).
 * :meth:`Adapter.on_setup_change` is told of a set-up change (the daemon's ``setup`` key):
   adaptation gets eager as after a drift, and the buffer is *carried over*: the body wall's
   stiffness is tracked per bin of sample time on the offered samples
@@ -115,6 +121,10 @@ class Adapter:
         self._scaling_cache: tuple | None = None
         self._batch_buf: tuple[np.ndarray, np.ndarray] | None = None
         self._eager_until = -np.inf
+        # the end of the eager period of the latest set-up change, announced or taken from a
+        # drift (extended by its first carry-over), on the rounds' clock: a drift before it
+        # is that change's, not a new one
+        self._change_until = -np.inf
         self._next_round: float | None = None
         self.rounds = 0
         self.accepted = 0
@@ -205,6 +215,7 @@ class Adapter:
             self.body_wall.announce(t)
         now = t if now is None else now
         self._eager_until = now + self.config.eager_s
+        self._change_until = self._eager_until if kind == "pressure" else -np.inf
         self._next_round = now
 
     def _forget_instrument(self) -> None:
@@ -245,26 +256,31 @@ class Adapter:
         if changed and self._carried_segment < latest:
             self._carried_segment = latest
             self._eager_until = max(self._eager_until, t + self.config.eager_s)
+            self._change_until = max(self._change_until, t + self.config.eager_s)
         return changed
 
     def on_drift(self, t: float) -> None:
         """The set-up changed at ``t`` [s]: adapt eagerly, forget the old regime's samples."""
+        within = t < self._change_until      # still adapting to the latest change
         self._eager_until = t + self.config.eager_s
         self._next_round = t
         self._holdout.clear()
-        if self.config.drift_carry_over and self.config.body_wall.enabled:
-            self._carry_over_drift(t - self.config.drift_lead_s)
+        if self.config.drift_carry_over and self.config.body_wall.enabled and not within:
+            if self._carry_over_drift(t - self.config.drift_lead_s):
+                self._change_until = self._eager_until
 
-    def _carry_over_drift(self, onset: float) -> None:
+    def _carry_over_drift(self, onset: float) -> bool:
         """Take a drift for an unannounced change at ``onset`` [s], unless there is nothing
         to carry (no sample yet: the pipeline's eager start) or a change was taken less than
-        ``eager_s`` before it (the drift is that change, announced or detected)."""
+        ``eager_s`` before it (the drift is that change, announced or detected); whether it
+        was taken."""
         if self.body_wall.latest == -np.inf:
-            return
+            return False
         starts = self.body_wall.starts
         if starts and onset - starts[-1] < self.config.eager_s:
-            return
+            return False
         self.body_wall.announce(onset)
+        return True
 
     @property
     def holdout(self) -> np.ndarray:

@@ -313,6 +313,28 @@ def test_a_drift_with_nothing_to_carry_or_just_after_a_change_starts_no_segment(
     assert adapter.body_wall.starts == [60.0, 95.0]
 
 
+def test_a_drift_while_adapting_to_a_change_starts_no_segment():
+    """A drift detected while the rounds are still eager for the latest change (its eager_s,
+    extended by its first carry-over) is that change's residual, not a new change: taken for
+    one, its stiffness (a bin or two of free motion) carried the whole buffer by thousands of
+    N/m (insufflation-change seed 6, adaptation seed 2, announced: a drift 31 s after the
+    notice, a segment fitted at 4820 N/m against 1285, the net 6-10 N off for good)."""
+    rate = 100.0
+    t = np.arange(0, 80.0, 1 / rate)
+    windows, step1, measured, *_ = wall_samples(t, np.where(t < 60.0, 12.0, 20.0))
+    adapter = Adapter(AdaptationConfig(min_train_samples=100, round_steps=2))
+    seen = t < 60.0
+    adapter.add(windows[seen], step1[seen], measured[seen], t[seen])
+    adapter.on_setup_change(60.0)
+    adapter.add(windows[~seen], step1[~seen], measured[~seen], t[~seen])
+    adapter.round(80.0)                      # the first carry-over: eager until 110 s
+    assert adapter.recent.shift[:adapter.recent.n].any()
+    adapter.on_drift(95.0)                   # past eager_s after the notice, still adapting
+    assert adapter.body_wall.starts == [60.0]
+    adapter.on_drift(111.0)                  # adapted: a change of its own
+    assert adapter.body_wall.starts == [60.0, 111.0]
+
+
 def test_an_idle_tick_is_one_that_does_nothing():
     """The host's idle_tick: a tick it calls idle returns no round whatever rows came before
     it, and a tick at the next round's time is not idle (the replay worker skips the idle
