@@ -22,11 +22,10 @@ process, :mod:`wrenchd.service.runtime.worker`) and by replay (inline, in simula
   measures the stiffness on either side, so a drift that changed nothing shifts the rows by
   about nothing. A drift detected while the rounds are still eager for the latest change
   (announced or detected; its ``eager_s``, extended by its first carry-over) is taken for that
-  change's, not a new one: a segment started then is fitted on a bin or two of free motion,
-  and on ``insufflation-change`` seed 6 (adaptation seed 2, announced) one such, 31 s after
-  the notice, was fitted at 4820 N/m against 1285 N/m and carried the whole buffer and
-  held-out set by the difference (the net ended 6-10 N off, the gate called all free motion
-  contact, and nothing could train it back).
+  change's, not a new one: a segment started then would be fitted on a bin or two of free
+  motion, several times off the true stiffness, and carry the whole buffer and held-out set
+  by the difference (the net then ends newtons off, the gate calls all free motion contact,
+  and nothing can train it back).
 * :meth:`Adapter.on_setup_change` is told of a set-up change (the daemon's ``setup`` key):
   adaptation gets eager as after a drift, and the buffer is *carried over*: the body wall's
   stiffness is tracked per bin of sample time on the offered samples
@@ -259,11 +258,15 @@ class Adapter:
             self._change_until = max(self._change_until, t + self.config.eager_s)
         return changed
 
-    def on_drift(self, t: float) -> None:
-        """The set-up changed at ``t`` [s]: adapt eagerly, forget the old regime's samples."""
-        within = t < self._change_until      # still adapting to the latest change
-        self._eager_until = t + self.config.eager_s
-        self._next_round = t
+    def on_drift(self, t: float, now: float | None = None) -> None:
+        """A drift detected at sample time ``t`` [s]: adapt eagerly from ``now`` (the rounds'
+        clock; default ``t``), forget the held-out samples, and (``drift_carry_over``) take
+        it for an unannounced change at ``t - drift_lead_s`` unless the rounds are still
+        adapting to the latest change."""
+        now = t if now is None else now
+        within = now < self._change_until    # still adapting to the latest change
+        self._eager_until = now + self.config.eager_s
+        self._next_round = now
         self._holdout.clear()
         if self.config.drift_carry_over and self.config.body_wall.enabled and not within:
             if self._carry_over_drift(t - self.config.drift_lead_s):

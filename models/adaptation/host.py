@@ -9,7 +9,8 @@ Calls, by ``kind``:
 * ``"samples"``: payload ``(windows (n, W, 12), step1 (n, 6), measured (n, 6), t (n,))``
   (:meth:`Adapter.add`); ``"rows"``: payload ``(rows (n, W * 12 + 12) float32, t (n,))``
   (:meth:`Adapter.add_rows`).
-* ``"drift"``: adapt eagerly from ``now``, forget the old regime's samples.
+* ``"drift"``: a drift detected at the sample time ``payload`` (None: ``now``): adapt eagerly
+  from ``now``, forget the held-out samples (:meth:`Adapter.on_drift`).
 * ``"setup"``: payload the announced change's sample time [s]; a ``"pressure"`` change, eager
   from ``now`` (:meth:`Adapter.on_setup_change`); ``"instrument"``: the same for an instrument
   change (the adapter's training data restart). :data:`SETUP_CALLS` names the call of each
@@ -80,7 +81,7 @@ class AdapterHost:
         elif kind == "rows":
             adapter.add_rows(*payload)
         elif kind == "drift":
-            adapter.on_drift(now)
+            adapter.on_drift(now if payload is None else float(payload), now)
         elif kind == "setup":
             adapter.on_setup_change(float(payload), now, "pressure")
         elif kind == "instrument":

@@ -282,7 +282,7 @@ class ProcessAdaptation:
 
     def drift(self, t: float) -> None:
         self._send_batch()
-        self.worker.send("drift", self.arm)
+        self.worker.send("drift", self.arm, float(t))     # the sample time of the detection
 
     def setup_change(self, t: float, kind: str = "pressure") -> None:
         self._send_batch()                  # the samples before it first

@@ -316,9 +316,8 @@ def test_a_drift_with_nothing_to_carry_or_just_after_a_change_starts_no_segment(
 def test_a_drift_while_adapting_to_a_change_starts_no_segment():
     """A drift detected while the rounds are still eager for the latest change (its eager_s,
     extended by its first carry-over) is that change's residual, not a new change: taken for
-    one, its stiffness (a bin or two of free motion) carried the whole buffer by thousands of
-    N/m (insufflation-change seed 6, adaptation seed 2, announced: a drift 31 s after the
-    notice, a segment fitted at 4820 N/m against 1285, the net 6-10 N off for good)."""
+    one, its stiffness (fitted on a bin or two of free motion) would carry the whole buffer by
+    thousands of N/m."""
     rate = 100.0
     t = np.arange(0, 80.0, 1 / rate)
     windows, step1, measured, *_ = wall_samples(t, np.where(t < 60.0, 12.0, 20.0))
@@ -333,6 +332,24 @@ def test_a_drift_while_adapting_to_a_change_starts_no_segment():
     assert adapter.body_wall.starts == [60.0]
     adapter.on_drift(111.0)                  # adapted: a change of its own
     assert adapter.body_wall.starts == [60.0, 111.0]
+
+
+def test_a_drift_from_the_daemon_starts_its_segment_at_its_sample_time():
+    """The daemon's worker runs the rounds on its own clock (seconds since it started) while
+    the samples carry the robot's: a drift is placed among the samples by its sample time,
+    and makes the rounds eager on the worker's clock."""
+    from wrenchd.models.adaptation.host import AdapterHost
+
+    rate = 100.0
+    t = 1000.0 + np.arange(0, 90.0, 1 / rate)              # the robot's clock
+    windows, step1, measured, *_ = wall_samples(t, np.where(t < 1060.0, 12.0, 20.0))
+    host = AdapterHost({"PSM1": AdaptationConfig(min_train_samples=100, round_steps=2)})
+    host.call("PSM1", "samples", 30.0, (windows, step1, measured, t))
+    host.call("PSM1", "drift", 31.0, 1062.0)               # worker clock 31 s
+    adapter = host.adapters["PSM1"]
+    assert adapter.body_wall.starts == [1062.0 - adapter.config.drift_lead_s]
+    assert adapter._next_round == 31.0
+    assert adapter._eager_until == 31.0 + adapter.config.eager_s
 
 
 def test_an_idle_tick_is_one_that_does_nothing():
