@@ -60,7 +60,7 @@ class DelayLine:
 
     def clear(self) -> None:
         """Forget the waiting samples (a gap or a new timeline: the line spans neither)."""
-        self._head = self._tail = 0
+        self._head = self._tail                 # never back to 0: see release()
 
     def push(self, t: float, window: np.ndarray, step1: np.ndarray, measured: np.ndarray) -> None:
         """Queue one sample (its arrays are copied)."""
@@ -91,8 +91,10 @@ class DelayLine:
         self._head, self._tail = 0, n
 
     def release(self, t: float) -> Released | None:
-        """The samples that have waited ``release_delay_s`` by ``t`` [s], oldest first (copies),
-        or None."""
+        """The samples that have waited ``release_delay_s`` by ``t`` [s], oldest first, or
+        None. Views of the line's arrays, and they stay valid: the line only writes past its
+        newest sample, into arrays of its own when it moves (``_make_room``), so a released
+        slot is never written again."""
         head, tail, delay = self._head, self._tail, self.policy.release_delay_s
         if head == tail or not t - self._t[head] >= delay:
             return None
@@ -103,8 +105,7 @@ class DelayLine:
         end = head + k
         self._head = end
         win, s1, meas = self._rows
-        return Released(self._t[head:end].copy(), win[head:end].copy(), s1[head:end].copy(),
-                        meas[head:end].copy())
+        return Released(self._t[head:end], win[head:end], s1[head:end], meas[head:end])
 
     def drop_onset(self, contact_started: int) -> int:
         """Drop the waiting samples that may belong to the contact the gate is in: from

@@ -50,7 +50,7 @@ def test_samples_wait_their_delay_and_a_contact_takes_its_onset_with_it():
     np.testing.assert_array_equal(line.waiting_times(), [j / RATE_HZ for j in model])
 
 
-def test_a_released_batch_is_a_copy_and_an_unknown_onset_drops_everything():
+def test_a_released_batch_stays_as_it_was_and_an_unknown_onset_drops_everything():
     line = DelayLine(PolicyConfig(release_delay_s=0.01), history=4, capacity=2)
     for i in range(30):
         line.estimated_at(i / RATE_HZ)
@@ -67,3 +67,9 @@ def test_a_released_batch_is_a_copy_and_an_unknown_onset_drops_everything():
     line.push(*_sample(40))
     line.clear()
     assert line.waiting == 0 and line.release(10.0) is None
+    for i in range(41, 45):                       # after a clear, nothing released is reused
+        line.push(*_sample(i))
+    last = line.release(10.0)
+    assert [int(v) for v in last.window[:, 0, 0]] == [41, 42, 43, 44]
+    assert [int(v) for v in ready.window[:, 0, 0]] == list(range(16))
+    np.testing.assert_array_equal(ready.measured[:, 0], -np.arange(16.0))
