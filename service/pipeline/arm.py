@@ -236,11 +236,13 @@ class ArmPipeline:
             return None, events + [self._error(t, "non_finite_output", "estimate not finite")]
         index = self.line.estimated_at(t)
         self.counters.estimated += 1
-        decision = self.gate.update(index, t, out.external_torque)
-        calibrating = self._calibrating(t, events)
+        warming = not self.gate.calibrated          # before this sample: its last warm-up one
+        decision = self.gate.update(index, t, out.external_torque)   # is still a warm-up's
+        calibrating = self._calibrating(t, events)  # (may reset the gate: warming from now)
         # a refusing guard goes on judging while the gate re-learns its bounds after the
         # calibration (its warm-up calls nothing free and would drop the delay line)
-        guarded = calibrating or (self._guard_refuses and not self.gate.calibrated)
+        guarded = calibrating or (self._guard_refuses
+                                  and (warming or not self.gate.calibrated))
         if guarded:
             decision = self._guard_decision(index, t, out, msg.effort, events, calibrating,
                                             decision.score)

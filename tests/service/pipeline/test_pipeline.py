@@ -239,6 +239,25 @@ def test_samples_waiting_from_before_a_contacts_onset_margin_are_offered_after_i
     assert p.counters.discarded_onsets < 0.6 * 200          # ~0.5 s at 200 Hz dropped
 
 
+def test_the_gates_last_warm_up_sample_is_the_guards_to_judge(seal):
+    """The sample that ends the gate's warm-up after the calibration is still a warm-up's
+    (the gate calls it nothing): the calibration guard judges it like the ones before. Taken
+    as the gate's verdict, it was published as contact and emptied the delay line."""
+    js = run_scenario("insufflation-change", 12.0, 3).joint_states    # contact-free
+    cfg = PipelineConfig(calibration_s=4.0)
+    p = ArmPipeline("PSM1", seal, cfg)
+    warmup = p.gate.config.warmup_samples
+    flags, waiting = [], []
+    for i in range(len(js)):
+        est, _ = p.process(msg(js, i))
+        flags.append(est.free)
+        waiting.append(p.line.waiting)
+    end = int(np.argmax(js.t >= 4.0)) + warmup - 1          # the warm-up's last sample
+    assert p.gate.calibrated
+    assert all(flags[end - 5:end + 2])
+    assert waiting[end] >= waiting[end - 1] > 0               # the line kept its samples
+
+
 def test_a_released_contact_is_published_free_but_neither_offered_nor_a_drift_level(seal):
     """The gate's ``release_free``: once a push is over, its samples are published free within
     a few samples, while the contact goes on (``exit_s``) for training and drift: none of them
