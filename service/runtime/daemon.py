@@ -225,10 +225,10 @@ class Daemon:
             return False
         keys = [cfg.keys.resolve(s.prefix, cfg.name, s.ros.domain_id)["measured_js"]
                 for cfg in s.arms]
-        if key_pattern(keys) is None:
-            print(f"wrenchd: no single key expression fits the arms' joint-state keys {keys}; "
-                  f"taking them through a callback each ([ring] intake = \"callback\")",
-                  file=sys.stderr, flush=True)
+        if any("*" in key for key in keys) or key_pattern(keys) is None:
+            print(f"wrenchd: the arms' joint-state keys {keys} are not exact keys that one key "
+                  f"expression fits; taking them through a callback each ([ring] intake = "
+                  f"\"callback\")", file=sys.stderr, flush=True)
             return False
         return True
 

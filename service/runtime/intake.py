@@ -71,10 +71,14 @@ class ChannelIntake:
         capacity: samples the channel holds (all arms together); beyond, zenoh drops the
             oldest.
     Raises:
-        ConfigError: keys that no single expression matches (:func:`key_pattern`).
+        ConfigError: keys that no single expression matches (:func:`key_pattern`), or a key
+            that is itself a pattern (``*``: samples are handed to arms by their exact key).
     """
 
     def __init__(self, session, keys: Sequence[str], capacity: int) -> None:
+        if any("*" in key for key in keys):
+            raise ConfigError(f"the channel intake needs each arm's exact key, got {list(keys)};"
+                              f" use [ring] intake = \"callback\"")
         pattern = key_pattern(keys)
         if pattern is None:
             raise ConfigError(f"no single key expression matches the arms' keys {list(keys)}; "

@@ -94,3 +94,5 @@ def test_a_full_channel_keeps_the_newest_and_is_counted(session):
 def test_keys_that_do_not_fit_are_refused(session):
     with pytest.raises(ConfigError, match="intake"):
         ChannelIntake(session, ["dvrk/PSM1/measured_js", "x/PSM2/a/measured_js"], 10)
+    with pytest.raises(ConfigError, match="exact key"):
+        ChannelIntake(session, ["dvrk/PSM1/**"], 10)
