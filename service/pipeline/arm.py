@@ -246,6 +246,12 @@ class ArmPipeline:
         if guarded:
             decision = self._guard_decision(index, t, out, msg.effort, events, calibrating,
                                             decision.score)
+            if warming and self.gate.calibrated and not calibrating:
+                # the hand-over to the gate: a contact too weak for the guard may be in
+                # progress (the gate's settle keeps the next exit_s out of training); the
+                # samples waiting in the delay line, judged by the guard alone, go as well
+                self.counters.discarded_onsets += self.line.drop_onset(-1)
+                decision = decision._replace(trainable=False)
         elif self._was_guarded and self._guard_refuses and self.guard.gate.in_contact:
             # the gate takes over from the guard in the middle of a contact: it goes on
             # with it (fresh, it would need a run of samples to find it, and train on them)
