@@ -54,7 +54,7 @@ from wrenchd.service.runtime.log_process import LogWriterProcess
 from wrenchd.service.runtime.scheduling import enter_realtime, normal_scheduling, realtime, realtime_below
 from wrenchd.service.pipeline.step1 import Step1, load_step1
 from wrenchd.service.runtime.arm import ROS_NODE_ID, ArmRuntime
-from wrenchd.service.runtime.intake import ChannelIntake, key_pattern
+from wrenchd.service.runtime.intake import ChannelIntake, channel_fits
 from wrenchd.service.runtime.plumbing import SWITCH_INTERVAL_S, Console, gather
 from wrenchd.service.runtime.worker import WorkerProcess
 
@@ -225,7 +225,7 @@ class Daemon:
             return False
         keys = [cfg.keys.resolve(s.prefix, cfg.name, s.ros.domain_id)["measured_js"]
                 for cfg in s.arms]
-        if any("*" in key for key in keys) or key_pattern(keys) is None:
+        if not channel_fits(keys):
             print(f"wrenchd: the arms' joint-state keys {keys} are not exact keys that one key "
                   f"expression fits; taking them through a callback each ([ring] intake = "
                   f"\"callback\")", file=sys.stderr, flush=True)

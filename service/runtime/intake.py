@@ -62,6 +62,12 @@ def key_pattern(keys: Sequence[str]) -> str | None:
     return "/".join(out)
 
 
+def channel_fits(keys: Sequence[str]) -> bool:
+    """Whether one :class:`ChannelIntake` can serve arms with these keys: exact keys (samples
+    are handed to the arm whose key they carry) that one key expression fits."""
+    return not any("*" in key for key in keys) and key_pattern(keys) is not None
+
+
 class ChannelIntake:
     """One subscriber (a zenoh ring channel) for the joint states of several arms.
 
@@ -76,13 +82,10 @@ class ChannelIntake:
     """
 
     def __init__(self, session, keys: Sequence[str], capacity: int) -> None:
-        if any("*" in key for key in keys):
-            raise ConfigError(f"the channel intake needs each arm's exact key, got {list(keys)};"
-                              f" use [ring] intake = \"callback\"")
+        if not channel_fits(keys):
+            raise ConfigError(f"the channel intake needs exact keys that one key expression "
+                              f"fits, got {list(keys)}; use [ring] intake = \"callback\"")
         pattern = key_pattern(keys)
-        if pattern is None:
-            raise ConfigError(f"no single key expression matches the arms' keys {list(keys)}; "
-                              f"use [ring] intake = \"callback\"")
         self.pattern, self.capacity = pattern, capacity
         self.index = {key: i for i, key in enumerate(keys)}
         self.full = 0                # passes that found the channel full (samples lost)

@@ -8,7 +8,7 @@ import pytest
 
 from wrenchd.adapters.zenoh_io import ZenohConfig, open_session
 from wrenchd.models.errors import ConfigError
-from wrenchd.service.runtime.intake import ChannelIntake, key_pattern
+from wrenchd.service.runtime.intake import ChannelIntake, channel_fits, key_pattern
 
 
 def test_the_pattern_keeps_what_the_keys_share():
@@ -27,6 +27,9 @@ def test_keys_that_no_single_expression_fits():
     assert key_pattern(["@a/js", "@b/js"]) is None
     with pytest.raises(ConfigError):
         key_pattern([])
+    assert channel_fits(["dvrk/PSM1/measured_js", "dvrk/PSM2/measured_js"])
+    assert not channel_fits(["dvrk/PSM1/measured_js", "robot/PSM2/state/measured_js"])
+    assert not channel_fits(["dvrk/*/measured_js"])           # a pattern, not an arm's key
 
 
 @pytest.fixture
@@ -94,5 +97,5 @@ def test_a_full_channel_keeps_the_newest_and_is_counted(session):
 def test_keys_that_do_not_fit_are_refused(session):
     with pytest.raises(ConfigError, match="intake"):
         ChannelIntake(session, ["dvrk/PSM1/measured_js", "x/PSM2/a/measured_js"], 10)
-    with pytest.raises(ConfigError, match="exact key"):
+    with pytest.raises(ConfigError, match="exact keys"):
         ChannelIntake(session, ["dvrk/PSM1/**"], 10)
