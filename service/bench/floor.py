@@ -4,9 +4,10 @@ A stand-in for the daemon with the daemon's plumbing and none of its work: the d
 intake (one :class:`~wrenchd.service.runtime.intake.ChannelIntake` for all arms, or with
 ``--intake callback`` per arm a subscriber whose callback puts the payload in a
 :class:`~wrenchd.service.runtime.plumbing.SampleRing`), one thread that takes the samples,
-reads each joint state's stamp and publishes a zero wrench with that stamp. What ``bench service`` measures against it is what zenoh on loopback, the
-callback-to-thread hand-off, the GIL and this machine's scheduling cost before any
-estimation: the part of the daemon's latency that no faster estimator can remove.
+reads each joint state's stamp and publishes a zero wrench with that stamp. What ``bench
+service`` measures against it is what zenoh on loopback, the hand-off to the thread, the GIL
+and this machine's scheduling cost before any estimation: the part of the daemon's latency
+that no faster estimator can remove.
 
 Run by the bench as ``python -m wrenchd.service.bench.floor --listen ENDPOINT --arms PSM1 ...``.
 """

@@ -78,8 +78,8 @@ class DelayLine:
         self._tail = i + 1
 
     def _make_room(self) -> None:
-        """Move the waiting samples to the front, into arrays twice as large when they fill
-        more than half."""
+        """Move the waiting samples to the front of new arrays (twice as large when they
+        fill more than half); the old ones are left as they are, for the released views."""
         head, n = self._head, self._tail - self._head
         if n > self._capacity // 2:
             self._capacity *= 2
