@@ -23,6 +23,16 @@ With ``joint_without_peak`` (off by default) the joint score leaves out the peak
 spike on one joint (the insertion's friction at a velocity reversal) cannot start a contact
 through it; on the simulated drift scenarios that raised precision but cost recall (weak
 contacts are often carried by one joint more than the others).
+Free-motion model error is not spread evenly in time: friction is hardest to model where a
+joint turns round, and its residual there is several times its usual size for a few tens of
+milliseconds (the simulated insertion: 3-7 times in the first 50 ms after a reversal; the
+wrist joints about twice for 100-200 ms). Given the joint velocities, the gate learns each
+joint's spread apart for samples soon after its velocity reversed or while it is slow
+(``reversal_bins_s``, ``slow_velocity``; :class:`ReversalSpread`) and scores those samples
+against it; the scale itself learns from the samples brought back to the steady spread.
+Which free samples may train is still judged on the steady scale: a reversal's spike is
+free motion, not a sample to learn from. Without velocities, one spread for all samples.
+
 The hysteresis protects training; the published flag need not wait for it. With
 ``release_free`` a contact is *released* at its first sample under both exit bounds: from
 there its samples are published free (the force is gone: the release ramp is over in a few
@@ -82,6 +92,7 @@ the sample index at which the current contact began, so samples buffered before 
 
 from __future__ import annotations
 
+import bisect
 import math
 from typing import NamedTuple
 
@@ -145,6 +156,21 @@ class GateConfig(BaseModel):
         default=False,
         description="the joint score leaves out the joint with the peak score (one joint's "
                     "spike is the peak score's to judge)")
+    reversal_bins_s: tuple[float, ...] = Field(
+        default=(0.05, 0.1, 0.2, 0.4),
+        description="with velocities given, each joint's residual spread is learnt apart for "
+                    "samples this soon after its velocity reversed or was under slow_velocity "
+                    "[s, increasing upper bin edges]; empty: one spread for all samples")
+    slow_velocity: tuple[float, ...] = Field(
+        default=(0.02, 0.02, 0.002, 0.04, 0.04, 0.04),
+        description="a joint this slow counts as reversing [rad/s; m/s on insertion]")
+    reversal_alpha: float = Field(
+        default=2e-3, gt=0.0, lt=1.0,
+        description="least weight of a new sample in a reversal bin's mean square (the first "
+                    "ones are averaged plainly)")
+    max_reversal_factor: float = Field(
+        default=10.0, ge=1.0,
+        description="a reversal bin's spread is between 1 and this x the joint's scale")
     release_free: bool = Field(
         default=True,
         description="while a contact's exit is pending (under the exit bounds, exit_s not yet "
@@ -168,6 +194,72 @@ def warmup_mean_square(residuals: np.ndarray, within_sigma: float) -> np.ndarray
     sigma = 1.4826 * np.median(np.abs(r), axis=0)
     keep = (np.abs(r) <= within_sigma * sigma).all(axis=1)
     return np.mean((r[keep] if keep.any() else r) ** 2, axis=0)
+
+
+#: pseudo-samples of spread 1 (the steady scale) a reversal bin starts with: a bin's first
+#: few samples cannot widen it alone
+REVERSAL_PRIOR_COUNT = 20
+
+
+class ReversalSpread:
+    """How much wider each joint's free-motion residual is soon after its velocity reversed.
+
+    Friction is hardest to model where a joint turns round (pre-sliding, Stribeck): on the
+    simulated PSM the insertion joint's free-motion residual is 3-7 times its usual spread in
+    the first 50 ms after a reversal and the wrist joints' about twice, over 100-200 ms;
+    a contact does not prefer those moments. A joint is *reversing* while its speed is
+    under ``slow`` or its velocity's sign has just changed; each sample falls in the first
+    bin whose upper edge (``edges``, seconds since the joint last reversed) it is under, or
+    in the steady bin. Each reversal bin learns its mean square score on the steady scale
+    (plain mean over its first samples, then fading with weight ``alpha``), and its spread
+    factor is the root of that, between 1 and ``max_factor``.
+    """
+
+    def __init__(self, edges: tuple[float, ...], slow: tuple[float, ...], alpha: float,
+                 max_factor: float) -> None:
+        self._edges, self._slow = list(edges), list(slow)
+        self._alpha, self._max_sq = alpha, max_factor * max_factor
+        k = len(edges)
+        self._msq = [[1.0] * N_JOINTS for _ in range(k)]
+        self._n = [[float(REVERSAL_PRIOR_COUNT)] * N_JOINTS for _ in range(k)]
+        self._factor_sq = [[1.0] * N_JOINTS for _ in range(k + 1)]   # last: steady motion
+        self._sign = [0] * N_JOINTS
+        self._since = [-math.inf] * N_JOINTS
+        self._bins = [k] * N_JOINTS
+
+    def factors_sq(self, t: float, velocity) -> list[float]:
+        """Each joint's squared spread factor for a sample at ``t`` [s] with joint
+        velocities ``velocity`` (6,) [rad/s; m/s] (remembered for :meth:`learn`)."""
+        out = []
+        for j, v in enumerate(velocity):
+            lim = self._slow[j]
+            s = 1 if v > lim else (-1 if v < -lim else 0)
+            if s == 0:
+                self._since[j] = t
+            elif s != self._sign[j]:
+                if self._sign[j]:                # not a joint's first motion seen
+                    self._since[j] = t
+                self._sign[j] = s
+            b = bisect.bisect_left(self._edges, t - self._since[j])
+            self._bins[j] = b
+            out.append(self._factor_sq[b][j])
+        return out
+
+    def learn(self, zsq_steady: list[float]) -> None:
+        """Learn the last sample's squared scores on the steady scale (6,)."""
+        k = len(self._edges)
+        for j, b in enumerate(self._bins):
+            if b < k:
+                n = self._n[b][j] + 1.0
+                self._n[b][j] = n
+                m = self._msq[b][j]
+                m += max(self._alpha, 1.0 / n) * (zsq_steady[j] - m)
+                self._msq[b][j] = m
+                self._factor_sq[b][j] = min(max(m, 1.0), self._max_sq)
+
+    def factors(self) -> np.ndarray:
+        """(bins + 1, 6) spread factors, the steady bin last."""
+        return np.sqrt(np.asarray(self._factor_sq))
 
 
 class GateDecision(NamedTuple):
@@ -200,6 +292,11 @@ class FreeMotionGate:
             raise DataError(f"min_std needs {N_JOINTS} values")
         if c.exit_sigma > c.enter_sigma or c.joint_exit_sigma > c.joint_sigma:
             raise DataError("an exit bound must not exceed its enter bound")
+        if len(c.slow_velocity) != N_JOINTS:
+            raise DataError(f"slow_velocity needs {N_JOINTS} values")
+        if any(b <= a for a, b in zip((0.0,) + c.reversal_bins_s, c.reversal_bins_s)):
+            raise DataError(f"reversal_bins_s must be positive and increasing, "
+                            f"got {c.reversal_bins_s}")
         self._floor = np.asarray(c.min_std, dtype=float)
         self._block_fading = 1.0 - (1.0 - c.alpha) ** c.learn_block
         self.reset()
@@ -227,6 +324,8 @@ class FreeMotionGate:
         self._warm = [stats.Mean() for _ in range(N_JOINTS)]     # plain mean while warming up
         c = self.config
         self._warm_buf = (np.empty((c.warmup_samples, N_JOINTS)) if c.robust_warmup else None)
+        self.reversal = (ReversalSpread(c.reversal_bins_s, c.slow_velocity, c.reversal_alpha,
+                                        c.max_reversal_factor) if c.reversal_bins_s else None)
         self._acc = [0.0] * N_JOINTS           # sum of squared residuals not yet learned
         self._n_acc = 0
         self._seen = 0
@@ -405,11 +504,19 @@ class FreeMotionGate:
         elif self._n_acc >= c.learn_block:
             self._flush()
 
-    def update(self, index: int, t: float, residual: np.ndarray) -> GateDecision:
-        """Judge sample ``index`` at time ``t`` [s] with residual torques (6,)."""
+    def update(self, index: int, t: float, residual: np.ndarray,
+               velocity: np.ndarray | None = None) -> GateDecision:
+        """Judge sample ``index`` at time ``t`` [s] with residual torques (6,) [N m; N]
+        and, for ``reversal_bins_s``, joint velocities (6,) [rad/s; m/s]."""
         cfg = self.config
         r = residual.tolist() if isinstance(residual, np.ndarray) else [float(x) for x in residual]
-        zsq = [a * a * b for a, b in zip(r, self._inv_var)]      # squared scores z_j^2
+        steady = [a * a * b for a, b in zip(r, self._inv_var)]   # squared scores z_j^2
+        motion = self.reversal if velocity is not None else None
+        if motion is None:
+            zsq = steady
+        else:                                   # wider where the joint just turned round
+            v = velocity.tolist() if isinstance(velocity, np.ndarray) else velocity
+            zsq = [z / f for z, f in zip(steady, motion.factors_sq(t, v))]
         peak = max(zsq)
         score = math.sqrt(peak)
         joint = (math.sqrt((sum(zsq) - peak) / (N_JOINTS - 1)) if cfg.joint_without_peak
@@ -417,6 +524,8 @@ class FreeMotionGate:
         if self._seen < cfg.warmup_samples:              # learn the level first, call nothing
             if self._warm_buf is not None:
                 self._warm_buf[self._seen] = r
+            if motion is not None:
+                motion.learn(steady)
             self._learn(zsq)
             if self._seen == cfg.warmup_samples:
                 self.settle(t)
@@ -436,9 +545,12 @@ class FreeMotionGate:
                 self.contacts += 1
             else:
                 if score < cfg.learn_sigma:
+                    if motion is not None:
+                        motion.learn(steady)
                     self._learn(zsq)
+                # training is judged on the plain scale (not widened at reversals)
                 tr = (math.sqrt(max(a * a * b for a, b in zip(r, self._inv_var_train)))
-                      if cfg.robust_warmup else score)      # the same scale without it
+                      if cfg.robust_warmup or motion is not None else score)
                 return GateDecision(True, score, -1, trainable=(tr < cfg.train_sigma
                                                                 and t >= self._probation_until))
         # in contact

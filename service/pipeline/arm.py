@@ -237,7 +237,8 @@ class ArmPipeline:
         index = self.line.estimated_at(t)
         self.counters.estimated += 1
         warming = not self.gate.calibrated          # before this sample: its last warm-up one
-        decision = self.gate.update(index, t, out.external_torque)   # is still a warm-up's
+        decision = self.gate.update(index, t, out.external_torque,   # is still a warm-up's
+                                    msg.velocity)
         calibrating = self._calibrating(t, events)  # (may reset the gate: warming from now)
         # a refusing guard goes on judging while the gate re-learns its bounds after the
         # calibration (its warm-up calls nothing free and would drop the delay line)
@@ -518,7 +519,10 @@ class ArmPipeline:
                             "contaminated": self.calibration_contaminated, **self._fit()},
             "gate": {"in_contact": self.gate.in_contact, "calibrated": self.gate.calibrated,
                      "contacts": self.gate.contacts, "mean": mean.tolist(),
-                     "std": std.tolist()},
+                     "std": std.tolist(),
+                     # per reversal bin (the steady bin last), each joint's spread factor
+                     "reversal_factors": (None if self.gate.reversal is None
+                                          else self.gate.reversal.factors().tolist())},
             "drift": {"detections": self.drift.detections,
                       "last_t": self.drift.last_detection_t},
             "setup": self._last_setup,
