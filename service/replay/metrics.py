@@ -33,6 +33,9 @@ PRE_S, ROLL_S, RECOVER_FRACTION = 30.0, 5.0, 0.10
 #: ``gate_episodes``: contact episodes count above this peak true force [N]; this long
 #: around each onset and release is not scored [s]
 EPISODE_MIN_N, EPISODE_MARGIN_S = 1.0, 0.1
+#: ``gate_episodes``: the recall of flagging every episode from its first sample over each
+#: of these true forces [N]
+ONSET_FORCES_N = (0.3, 0.5, 1.0)
 
 
 def episode_scoring(t: np.ndarray, contact: np.ndarray, force_n: np.ndarray,
@@ -66,16 +69,56 @@ def episode_scoring(t: np.ndarray, contact: np.ndarray, force_n: np.ndarray,
 def episode_gate_scores(t: np.ndarray, contact: np.ndarray, force_n: np.ndarray,
                         flagged: np.ndarray, judged: np.ndarray) -> dict[str, Any]:
     """Precision and recall of the (N,) ``flagged`` contact samples on the samples
-    :func:`episode_scoring` scores among the (N,) ``judged`` ones (after the calibration)."""
+    :func:`episode_scoring` scores among the (N,) ``judged`` ones (after the calibration),
+    and how late contacts are found.
+
+    ``onset``: over the scored episodes judged from their start, the delay from each one's
+    start to its first flagged sample [s] and the true force there [N] (median and max;
+    ``unfound``: episodes never flagged), and ``missed_before_flag``: the share of the
+    labelled samples missed before their episode's first flag (the rest of the misses are
+    later in an episode). ``recall_if_flagged_above_N``: the recall of a detector that knew
+    the true force and flagged each episode from the first sample over 0.3, 0.5 and 1 N to
+    its end: how weak a contact the recall asks to be found at.
+    """
     scored, label = episode_scoring(t, contact, force_n)
     scored &= judged
     label &= judged
     said = flagged & scored
     tp = int(np.sum(said & label))
+    edges = np.flatnonzero(np.diff(np.r_[False, contact, False].astype(np.int8)))
+    delays, forces, unfound, before = [], [], 0, 0
+    bound = {th: 0 for th in ONSET_FORCES_N}
+    for a, b in zip(edges[::2], edges[1::2]):
+        if not label[a:b].any():
+            continue
+        for th in ONSET_FORCES_N:
+            over = np.flatnonzero(force_n[a:b] > th)
+            if len(over):
+                bound[th] += int(label[a + over[0]:b].sum())
+        hit = np.flatnonzero(flagged[a:b])
+        before += int(label[a:a + (hit[0] if len(hit) else b - a)].sum())
+        if not judged[a]:
+            continue
+        if len(hit):
+            delays.append(float(t[a + hit[0]] - t[a]))
+            forces.append(float(force_n[a + hit[0]]))
+        else:
+            unfound += 1
+    n_label = int(label.sum())
+
+    def summary(x: list[float]) -> dict[str, float | None]:
+        return {"median": float(np.median(x)) if x else None,
+                "max": float(np.max(x)) if x else None}
+
     return {"precision": tp / int(said.sum()) if said.any() else None,
-            "recall": tp / int(label.sum()) if label.any() else None,
+            "recall": tp / n_label if n_label else None,
             "scored": int(scored.sum()), "min_peak_N": EPISODE_MIN_N,
-            "margin_s": EPISODE_MARGIN_S}
+            "margin_s": EPISODE_MARGIN_S,
+            "onset": {"episodes": len(delays) + unfound, "unfound": unfound,
+                      "delay_s": summary(delays), "force_at_flag_N": summary(forces)},
+            "missed_before_flag": before / n_label if n_label else None,
+            "recall_if_flagged_above_N": {f"{th:g}": (bound[th] / n_label if n_label else None)
+                                          for th in ONSET_FORCES_N}}
 
 
 def _rms(x: np.ndarray) -> float | None:
@@ -229,6 +272,16 @@ def _f(x: Any, digits: int = 3) -> str:
     return str(x)
 
 
+def _onset_line(g: dict[str, Any]) -> str:
+    o = g["onset"]
+    bound = ", ".join(f"{k} N {_f(v)}" for k, v in g["recall_if_flagged_above_N"].items())
+    return (f"- contacts found {_f(o['delay_s']['median'])} s after they start (median; max "
+            f"{_f(o['delay_s']['max'])} s), at {_f(o['force_at_flag_N']['median'])} N (median); "
+            f"{o['unfound']} of {o['episodes']} never; misses before the first flag: "
+            f"{_f(g['missed_before_flag'])} of the contact samples; recall if flagged from the "
+            f"first sample over {bound}")
+
+
 def metrics_markdown(m: dict[str, Any]) -> str:
     """A short Markdown report of :func:`replay_metrics`."""
     lines = [f"# Replay: policy `{m['policy']}` on `{m['source']}`", "",
@@ -254,6 +307,7 @@ def metrics_markdown(m: dict[str, Any]) -> str:
                   f"around onsets and releases left out: precision "
                   f"{_f(m['gate_episodes']['precision'])}, recall "
                   f"{_f(m['gate_episodes']['recall'])}",
+                  _onset_line(m["gate_episodes"]),
                   f"- training contamination: {c['in_contact']} of {c['offered']} offered "
                   f"samples were in contact ({_f(c['fraction'])}), "
                   f"{c['in_contact_after_calibration']} of them after the calibration"]

@@ -38,3 +38,26 @@ def test_a_gate_that_flags_exactly_the_contacts_scores_one_after_the_calibration
     assert abs(scores["recall"] - 0.9 / 1.8) < 0.02, scores       # 6.1-7.0 of 6.1-7.9 s
     always = episode_gate_scores(t, contact, force, np.ones(len(t), dtype=bool), judged)
     assert always["recall"] == 1.0 and always["precision"] < 0.5
+
+
+def test_onset_delay_and_the_force_a_contact_is_found_at():
+    """Two 2 s episodes whose force ramps 0 -> 2 N over their first second; the gate flags
+    the first from 0.5 s in (1 N), the second never."""
+    t = np.arange(0, 10.0, 0.01)
+    contact = ((t >= 2.0) & (t < 4.0)) | ((t >= 6.0) & (t < 8.0))
+    force = np.zeros(len(t))
+    for start in (2.0, 6.0):
+        inside = (t >= start) & (t < start + 2.0)
+        force[inside] = np.minimum(2.0 * (t[inside] - start), 2.0)
+    flagged = (t >= 2.5) & (t < 4.0)
+    s = episode_gate_scores(t, contact, force, flagged, np.ones(len(t), dtype=bool))
+    assert s["onset"]["episodes"] == 2 and s["onset"]["unfound"] == 1
+    assert abs(s["onset"]["delay_s"]["median"] - 0.5) < 0.011
+    assert abs(s["onset"]["force_at_flag_N"]["max"] - 1.0) < 0.021
+    # labelled samples: 2.1-3.9 and 6.1-7.9 s; missed before a flag: 2.1-2.5 and all of the
+    # second, none after
+    assert abs(s["missed_before_flag"] - (0.4 + 1.8) / 3.6) < 0.02
+    assert abs(s["missed_before_flag"] - (1 - s["recall"])) < 1e-9
+    # flagged from the first sample over 0.5 N (0.25 s in): 2.26-3.9 and 6.26-7.9 of 3.6 s
+    assert abs(s["recall_if_flagged_above_N"]["0.5"] - 2 * 1.64 / 3.6) < 0.02
+    assert s["recall_if_flagged_above_N"]["0.3"] > s["recall_if_flagged_above_N"]["1"]
