@@ -23,6 +23,7 @@ With ``joint_without_peak`` (off by default) the joint score leaves out the peak
 spike on one joint (the insertion's friction at a velocity reversal) cannot start a contact
 through it; on the simulated drift scenarios that raised precision but cost recall (weak
 contacts are often carried by one joint more than the others).
+
 Free-motion model error is not spread evenly in time: friction is hardest to model where a
 joint turns round, and its residual there is several times its usual size for a few tens of
 milliseconds (the simulated insertion: 3-7 times in the first 50 ms after a reversal; the
