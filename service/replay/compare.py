@@ -14,15 +14,13 @@ import re
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from wrenchd.models.estimator.free_space import FreeSpaceModel
 from wrenchd.models.series import Session
 from wrenchd.service.pipeline import PipelineConfig
 from wrenchd.service.provenance import RunMeter, stamp
 from wrenchd.service.replay.policies import get_policy
 from wrenchd.service.replay.loop import replay
-from wrenchd.service.replay.metrics import free_error_series, replay_metrics
+from wrenchd.service.replay.metrics import free_error_series, replay_metrics, true_runs
 from wrenchd.service.replay.output import nan_to_none
 from wrenchd.models.physics.effects.drift import drift_onsets
 from wrenchd.service.replay.source import load_session
@@ -77,11 +75,8 @@ def plot_session(path: Path, title: str, session: Session, series: dict[str, dic
     t = session.joint_states.t
     for ax in axes:
         if truth is not None and truth.in_contact.any():
-            c = truth.in_contact.astype(int)
-            starts = np.flatnonzero(np.diff(np.r_[0, c]) == 1)
-            stops = np.flatnonzero(np.diff(np.r_[c, 0]) == -1)
-            for a, b in zip(starts, stops):
-                ax.axvspan(t[a], t[b], color="0.85", lw=0)
+            for a, b in zip(*true_runs(truth.in_contact)):
+                ax.axvspan(t[a], t[b - 1], color="0.85", lw=0)
         for name, start, end in drift_onsets(session):
             ax.axvline(start, color="k", ls="--", lw=1)
             if end is not None:

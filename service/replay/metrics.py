@@ -38,6 +38,13 @@ EPISODE_MIN_N, EPISODE_MARGIN_S = 1.0, 0.1
 ONSET_FORCES_N = (0.3, 0.5, 1.0)
 
 
+def true_runs(flags: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Start and end (exclusive) indices of the runs of True in the (N,) ``flags``."""
+    edges = np.flatnonzero(np.diff(np.r_[False, np.asarray(flags, dtype=bool), False]
+                                   .astype(np.int8)))
+    return edges[::2], edges[1::2]
+
+
 def episode_scoring(t: np.ndarray, contact: np.ndarray, force_n: np.ndarray,
                     min_peak_n: float = EPISODE_MIN_N, margin_s: float = EPISODE_MARGIN_S
                     ) -> tuple[np.ndarray, np.ndarray]:
@@ -85,10 +92,9 @@ def episode_gate_scores(t: np.ndarray, contact: np.ndarray, force_n: np.ndarray,
     label &= judged
     said = flagged & scored
     tp = int(np.sum(said & label))
-    edges = np.flatnonzero(np.diff(np.r_[False, contact, False].astype(np.int8)))
     delays, forces, unfound, before = [], [], 0, 0
     bound = {th: 0 for th in ONSET_FORCES_N}
-    for a, b in zip(edges[::2], edges[1::2]):
+    for a, b in zip(*true_runs(contact)):
         if not label[a:b].any():
             continue
         for th in ONSET_FORCES_N:
