@@ -2,7 +2,9 @@
 
 Multicast scouting is off unless asked for, so a wrenchd on a hospital network never
 announces itself or joins strangers' sessions by accident. Every session must be closed
-explicitly (a callback subscriber left open keeps the interpreter from exiting).
+explicitly (a callback subscriber left open keeps the interpreter from exiting). What a
+session is configured with, zenoh's own configuration file and keys included, is composed in
+:mod:`wrenchd.adapters.zenoh_config`.
 
 Reconnection: a session whose router or peer goes away keeps its subscribers, publishers,
 queryables and liveliness tokens and re-declares them when the link comes back; zenoh retries
@@ -22,14 +24,11 @@ a sample marked with anything else is refused (:func:`wire_encoding`).
 
 from __future__ import annotations
 
-import json
 import time
 from functools import lru_cache
-from typing import Literal
-
-from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from wrenchd.adapters.messages import check_encoding
+from wrenchd.adapters.zenoh_config import ZenohConfig, describe, zenoh_reason
 from wrenchd.models.errors import AdapterError, DataError
 
 #: zenoh's encoding of each wire encoding
@@ -40,63 +39,22 @@ _MARKED = {"application/json": "json", "text/json": "json", "application/cdr": "
 _UNMARKED = frozenset(("", "zenoh/bytes", "application/octet-stream"))
 
 
-class ZenohConfig(BaseModel):
-    """How this process joins the zenoh network."""
-
-    model_config = ConfigDict(extra="forbid")
-
-    mode: Literal["peer", "client", "router"] = Field(default="peer", description="zenoh mode")
-    listen: list[str] = Field(default_factory=list,
-                              description="endpoints to listen on, e.g. tcp/127.0.0.1:7447")
-    connect: list[str] = Field(default_factory=list, description="endpoints to connect to")
-    multicast_scouting: bool = Field(default=False, description="discover peers by multicast")
-    connect_timeout_ms: int | None = Field(
-        default=None, ge=-1,
-        description="how long opening waits for a connect endpoint [ms]: -1 forever, 0 try once; "
-                    "default zenoh's (client 0: the daemon fails to start without its router)")
-    retry_period_init_ms: int = Field(
-        default=250, gt=0, description="first wait before re-trying a lost connect endpoint [ms]")
-    retry_period_max_ms: int = Field(
-        default=1000, gt=0,
-        description="longest wait between re-tries [ms] (zenoh's default 4000): bounds the "
-                    "silence after a router or peer comes back")
-    retry_period_increase_factor: float = Field(
-        default=2.0, ge=1.0, description="each failed try multiplies the wait by this")
-
-    @model_validator(mode="after")
-    def _retry_periods(self) -> ZenohConfig:
-        if self.retry_period_max_ms < self.retry_period_init_ms:
-            raise ValueError(f"retry_period_max_ms ({self.retry_period_max_ms}) must not be "
-                             f"below retry_period_init_ms ({self.retry_period_init_ms})")
-        return self
-
-    def to_zenoh(self):
-        import zenoh
-
-        conf = zenoh.Config()
-        conf.insert_json5("mode", json.dumps(self.mode))
-        conf.insert_json5("scouting/multicast/enabled", json.dumps(self.multicast_scouting))
-        if self.listen:
-            conf.insert_json5("listen/endpoints", json.dumps(self.listen))
-        if self.connect:
-            conf.insert_json5("connect/endpoints", json.dumps(self.connect))
-        conf.insert_json5("connect/retry", json.dumps({
-            "period_init_ms": self.retry_period_init_ms,
-            "period_max_ms": self.retry_period_max_ms,
-            "period_increase_factor": self.retry_period_increase_factor}))
-        if self.connect_timeout_ms is not None:
-            conf.insert_json5("connect/timeout_ms", json.dumps(self.connect_timeout_ms))
-        return conf
-
-
 def open_session(config: ZenohConfig):
-    """Open a zenoh session; raises AdapterError with the endpoint when it cannot."""
+    """Open a zenoh session.
+
+    Raises:
+        ConfigError: the configuration is refused (a config file gone since it was validated).
+        AdapterError: zenoh cannot open it (no router, a port in use, a certificate missing),
+            with the endpoints.
+    """
     import zenoh
 
+    conf = config.to_zenoh()
     try:
-        return zenoh.open(config.to_zenoh())
+        return zenoh.open(conf)
     except Exception as exc:  # zenoh.ZError and friends
-        raise AdapterError(f"cannot open zenoh session ({config.model_dump()}): {exc}") from exc
+        raise AdapterError(f"cannot open zenoh session ({describe(config)}): "
+                           f"{zenoh_reason(exc)}") from exc
 
 
 def wait_for_subscriber(publisher, timeout_s: float) -> bool:
