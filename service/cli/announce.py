@@ -30,12 +30,12 @@ import math
 import threading
 
 from wrenchd.models.errors import ConfigError
-from wrenchd.service.cli.echo import DEFAULT_CONNECT, query_status
+from wrenchd.service.cli.echo import add_zenoh_options, client_zenoh, query_status
 
 
 def announce(args: argparse.Namespace) -> int:
     from wrenchd.adapters.messages import encode_setup_change, stamp_ns_of
-    from wrenchd.adapters.zenoh_io import ZenohConfig, open_session, wait_for_subscriber
+    from wrenchd.adapters.zenoh_io import open_session, wait_for_subscriber
 
     if args.pressure is not None and not 0.0 <= args.pressure <= 100.0:
         raise ConfigError(f"--pressure must be in [0, 100] mmHg, got {args.pressure:g}")
@@ -64,7 +64,7 @@ def announce(args: argparse.Namespace) -> int:
             answers.append(event)
             answered.set()
 
-    session = open_session(ZenohConfig(connect=args.connect or [DEFAULT_CONNECT]))
+    session = open_session(client_zenoh(args))
     try:
         events = session.declare_subscriber(f"{base}/wrenchd/events", on_event)
         try:
@@ -131,8 +131,7 @@ def register(sub) -> None:
     p.add_argument("--note", default=None, help="free text logged with the notice")
     p.add_argument("--at", type=float, default=None, metavar="SECONDS",
                    help="sample time of the change [s] (default: now, the arm's latest sample)")
-    p.add_argument("--connect", action="append", metavar="ENDPOINT",
-                   help=f"zenoh endpoint of the daemon (default {DEFAULT_CONNECT})")
+    add_zenoh_options(p)
     p.add_argument("--timeout", type=float, default=5.0,
                    help="how long to wait for the daemon's subscriber, and then for its "
                         "answer [s]")

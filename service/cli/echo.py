@@ -12,16 +12,41 @@ DEFAULT_CONNECT = "tcp/127.0.0.1:7447"
 
 
 def echo(args: argparse.Namespace) -> int:
-    from wrenchd.adapters.zenoh_io import ZenohConfig, open_session
+    from wrenchd.adapters.zenoh_io import open_session
 
     base = f"{args.prefix}/{args.arm}"
-    session = open_session(ZenohConfig(connect=args.connect or [DEFAULT_CONNECT]))
+    session = open_session(client_zenoh(args))
     try:
         if args.status:
             return _status(session, f"{base}/wrenchd/status", args.timeout or 5.0)
         return _stream(session, base, args)
     finally:
         session.close()
+
+
+def client_zenoh(args: argparse.Namespace):
+    """The zenoh settings of a verb that joins a daemon: the ``--zenoh-config`` file, then the
+    ``--connect`` endpoints; :data:`DEFAULT_CONNECT` when neither names an endpoint.
+
+    Raises:
+        ConfigError: the file is missing or zenoh refuses it, or an endpoint is malformed.
+    """
+    from wrenchd.adapters.zenoh_config import has_endpoints, zenoh_config
+
+    zenoh = zenoh_config(config_file=args.zenoh_config, connect=args.connect or [])
+    if not has_endpoints(zenoh, "connect"):
+        zenoh = zenoh_config(config_file=args.zenoh_config, connect=[DEFAULT_CONNECT])
+    return zenoh
+
+
+def add_zenoh_options(p: argparse.ArgumentParser) -> None:
+    """``--connect`` and ``--zenoh-config`` of a verb that joins a daemon."""
+    p.add_argument("--connect", action="append", metavar="ENDPOINT",
+                   help=f"zenoh endpoint of the daemon (repeatable; default: the "
+                        f"--zenoh-config file's, else {DEFAULT_CONNECT})")
+    p.add_argument("--zenoh-config", metavar="FILE",
+                   help="zenoh configuration file (.json5, as zenoh's own tools take it: TLS, "
+                        "access, endpoints...); --connect applies over it")
 
 
 def query_status(session, key: str, timeout: float) -> dict | None:
@@ -108,8 +133,7 @@ def register(sub) -> None:
     p.add_argument("--arm", default="PSM1")
     p.add_argument("--prefix", default="dvrk")
     p.add_argument("--encoding", default="json", choices=["json", "cdr"])
-    p.add_argument("--connect", action="append", metavar="ENDPOINT",
-                   help=f"zenoh endpoint of the daemon (default {DEFAULT_CONNECT})")
+    add_zenoh_options(p)
     p.add_argument("--count", type=int, default=None, help="stop after N wrenches")
     p.add_argument("--every", type=int, default=20, help="print one wrench in N")
     p.add_argument("--events", action="store_true", help="also print events")

@@ -12,11 +12,14 @@ DEFAULT_LISTEN = "tcp/127.0.0.1:7447"
 
 
 def robot(args: argparse.Namespace) -> int:
-    from wrenchd.adapters.zenoh_io import ZenohConfig
+    from wrenchd.adapters.zenoh_config import has_endpoints, zenoh_config
     from wrenchd.service.runtime.robot import serve_simulated
 
-    listen = args.listen if args.listen is not None else ([] if args.connect else [DEFAULT_LISTEN])
-    zenoh = ZenohConfig(mode=args.mode, listen=listen, connect=args.connect or [])
+    zenoh = zenoh_config(config_file=args.zenoh_config, mode=args.mode,
+                         listen=args.listen or [], connect=args.connect or [])
+    if not (args.listen or has_endpoints(zenoh, "connect") or has_endpoints(zenoh, "listen")):
+        zenoh = zenoh_config(config_file=args.zenoh_config, mode=args.mode,
+                             listen=[DEFAULT_LISTEN], connect=args.connect or [])
     return serve_simulated(scenario=args.scenario, seed=args.seed, duration_s=args.duration,
                            out_dir=Path(args.out_dir), arm=args.arm, rate_hz=args.rate,
                            zenoh=zenoh, prefix=args.prefix, encoding=args.encoding,
@@ -35,12 +38,16 @@ def register(sub) -> None:
     p.add_argument("--encoding", default="json", choices=["json", "cdr"])
     p.add_argument("--rate", type=float, default=200.0, help="published rate [Hz]")
     p.add_argument("--out-dir", default="sessions", help="where the MCAP session goes")
-    p.add_argument("--mode", default="peer", choices=["peer", "client", "router"],
-                   help="zenoh mode")
+    p.add_argument("--mode", default=None, choices=["peer", "client", "router"],
+                   help="zenoh mode (default: the --zenoh-config file's, else peer)")
     p.add_argument("--listen", action="append", metavar="ENDPOINT",
-                   help="zenoh endpoint to listen on (repeatable; default tcp/127.0.0.1:7447)")
+                   help=f"zenoh endpoint to listen on (repeatable; default {DEFAULT_LISTEN} "
+                        f"unless --connect or the --zenoh-config file names endpoints)")
     p.add_argument("--connect", action="append", metavar="ENDPOINT",
                    help="zenoh endpoint to connect to (repeatable)")
+    p.add_argument("--zenoh-config", metavar="FILE",
+                   help="zenoh configuration file (.json5, as zenoh's own tools take it: TLS, "
+                        "access, endpoints...); --mode, --listen and --connect apply over it")
     p.add_argument("--quiet", action="store_true", help="no per-second progress lines")
     p.add_argument("--no-announce", action="store_true",
                    help="do not announce the scenario's set-up changes on {prefix}/{arm}/setup")

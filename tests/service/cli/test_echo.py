@@ -8,6 +8,8 @@ import signal
 import subprocess
 import sys
 
+from wrenchd.adapters.zenoh_config import ZenohConfig
+from wrenchd.adapters.zenoh_io import open_session
 from tests.support import communicate_within, expect_line, free_port, stop_within, write_config
 
 CLI = [sys.executable, "-m", "wrenchd"]
@@ -121,3 +123,36 @@ def test_announce_falls_back_on_the_status_when_no_event_comes_back(tmp_path):
     assert "accepted (the daemon's status counts it" in taken.stdout
     assert refused.returncode == 1, refused.stdout + refused.stderr
     assert "refused (the daemon's status counts a set-up error" in refused.stdout
+
+
+def test_echo_joins_through_a_zenoh_config_file_and_names_a_bad_one(tmp_path):
+    """The file's connect endpoint reaches the echo process (no --connect): it finds this
+    process's status queryable there; a bad file is refused by name, with no traceback."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    zfile = tmp_path / "echo.json5"
+    zfile.write_text(f'{{ mode: "client", connect: {{ endpoints: ["{endpoint}"] }} }}')
+
+    def answer(query) -> None:
+        query.reply(query.key_expr, json.dumps({"arm": "PSM1", "served": "by the test"}))
+
+    session = open_session(ZenohConfig(listen=[endpoint]))
+    try:
+        queryable = session.declare_queryable("dvrk/PSM1/wrenchd/status", answer)
+        try:
+            status = subprocess.run([*CLI, "echo", "--zenoh-config", str(zfile), "--status",
+                                     "--timeout", "10"], capture_output=True, text=True,
+                                    timeout=60)
+        finally:
+            queryable.undeclare()
+    finally:
+        session.close()
+    assert status.returncode == 0, status.stderr
+    assert json.loads(status.stdout) == {"arm": "PSM1", "served": "by the test"}
+
+    zfile.write_text('{ mode: "client", conect: {} }')
+    for verb in (["echo", "--status"], ["announce"]):
+        bad = subprocess.run([*CLI, *verb, "--zenoh-config", str(zfile)], capture_output=True,
+                             text=True, timeout=60)
+        assert bad.returncode == 2, bad.stderr
+        assert f"config_file '{zfile}': refused by zenoh: unknown field `conect`" in bad.stderr
+        assert "Traceback" not in bad.stderr
