@@ -10,10 +10,11 @@ The files are ROS 2 MCAP (profile ``ros2``, CDR messages, ``ros2msg`` schemas:
                                                             :mod:`wrenchd.adapters.mcap_session`
                                                             (a daemon log is a replayable
                                                             session)
-``/wrenchd/estimate``  ``wrenchd_msgs/msg/Estimate``        per sample: wrench, free-motion
-                                                            flag, gate score, model version,
-                                                            predicted and external joint
-                                                            torques (residual)
+``/wrenchd/estimate``  ``wrenchd_msgs/msg/Estimate``        per sample, float32: wrench,
+                                                            free-motion flag, gate score,
+                                                            model version, external joint
+                                                            torques (residual; the predicted
+                                                            ones are effort - external)
 ``/wrenchd/events``    ``wrenchd_msgs/msg/Event``           errors, gaps, contacts, drifts,
                                                             rounds, model swaps, log problems:
                                                             stamp, kind and the event's JSON
@@ -67,29 +68,27 @@ _JSON_TOPICS = {TOPIC_EVENTS: ros2.EVENT, TOPIC_STATUS: ros2.STATUS}   # JSON te
 
 
 def estimate_record(stamp_ns: int, frame_id: str, wrench: np.ndarray, free: bool, score: float,
-                    model_version: int, restarted: bool, predicted: np.ndarray,
-                    external: np.ndarray) -> bytes:
-    """One ``/wrenchd/estimate`` message (``wrenchd_msgs/msg/Estimate``, CDR).
+                    model_version: int, restarted: bool, external: np.ndarray) -> bytes:
+    """One ``/wrenchd/estimate`` message (``wrenchd_msgs/msg/Estimate``, CDR, float32).
 
     ``wrench`` [N, N m] must be six finite numbers (the pipeline never emits another); a
     non-finite joint torque stays NaN / Inf; a non-finite score is written as the cap, 1e9.
+    The predicted joint torques are not written: they are the logged effort minus
+    ``external`` (:func:`wrenchd.adapters.log_estimates.read_logged_estimates`).
     """
     w = np.asarray(wrench, dtype=np.float64)
     if w.shape != (6,) or not np.isfinite(w).all():
         raise ValueError(f"an estimate's wrench must be 6 finite numbers, got {wrench!r}")
-    torques = [np.asarray(v, dtype=np.float64) for v in (predicted, external)]
-    if any(v.shape != (6,) for v in torques):
-        raise ValueError("predicted and external must hold 6 joint torques each")
+    torque = np.asarray(external, dtype=np.float32)
+    if torque.shape != (6,):
+        raise ValueError("external must hold 6 joint torques")
     score = float(score)
     score = min(score, 1e9) if math.isfinite(score) else 1e9
-    vector = ros2.message_class(ros2.VECTOR3)
-    f = w.tolist()
+    w32 = w.astype(np.float32)
     return ros2.serialize(ros2.message_class(ros2.ESTIMATE)(
-        header=ros2.header(stamp_ns, frame_id),
-        wrench=ros2.message_class(ros2.WRENCH)(force=vector(x=f[0], y=f[1], z=f[2]),
-                                               torque=vector(x=f[3], y=f[4], z=f[5])),
+        header=ros2.header(stamp_ns, frame_id), force=w32[:3], torque=w32[3:],
         free=bool(free), score=score, model_version=int(model_version),
-        restarted=bool(restarted), predicted=torques[0], external=torques[1]))
+        restarted=bool(restarted), external=torque))
 
 
 def joint_state_record(stamp_ns: int, names, position, velocity, effort,
@@ -142,10 +141,12 @@ def json_record(topic: str, stamp_ns: int, text: bytes) -> bytes:
     return ros2.serialize(ros2.from_fields(TOPIC_TYPES[topic], fields))
 
 
-def message_fields(message_encoding: str, schema_name: str, data: bytes) -> Any:
+def message_fields(message_encoding: str, schema_name: str, data: bytes,
+                   definition: str | bytes | None = None) -> Any:
     """A logged message as JSON-like values, whichever format wrote it: a JSON log's message
     parsed; of a ROS 2 log, an event's or status's JSON object, any other message's fields
-    (:func:`wrenchd.adapters.ros2_msgs.to_fields`).
+    (:func:`wrenchd.adapters.ros2_msgs.to_fields`). ``definition``: the schema's data, which
+    decodes a message written with an earlier definition of its type (None: today's).
 
     Raises:
         DataError: the message cannot be decoded.
@@ -157,7 +158,7 @@ def message_fields(message_encoding: str, schema_name: str, data: bytes) -> Any:
             raise DataError(f"not JSON: {exc}") from None
     if message_encoding != ros2.MESSAGE_ENCODING:
         raise DataError(f"unknown message encoding {message_encoding!r}")
-    message = ros2.deserialize(data, schema_name)
+    message = ros2.deserialize(data, schema_name, definition)
     if schema_name in (ros2.EVENT, ros2.STATUS):
         try:
             return orjson.loads(message.json)

@@ -16,7 +16,9 @@ lines below ``pkg/Type`` fields. So ``ros2 bag info`` / ``ros2 bag play``, Foxgl
 Types: the standard ``sensor_msgs/msg/JointState`` and ``geometry_msgs/msg/WrenchStamped`` and
 the project's own package ``wrenchd_msgs`` (:data:`MSG_TEXT`). CDR (de)serialisation is the
 ``rosbags`` type store's: ROS 2 Humble's definitions plus ``wrenchd_msgs``, registered from the
-texts below.
+texts below. A file an earlier version wrote, whose definition of a type differs from today's
+(``wrenchd_msgs/msg/Estimate`` was float64 with ``predicted`` torques before it became float32),
+is decoded with the definition stored in it (:func:`deserialize`).
 """
 
 from __future__ import annotations
@@ -58,16 +60,18 @@ MSG_TEXT: dict[str, str] = {
     WRENCH: "geometry_msgs/Vector3 force\ngeometry_msgs/Vector3 torque\n",
     WRENCH_STAMPED: "std_msgs/Header header\ngeometry_msgs/Wrench wrench\n",
     ESTIMATE: (
-        "# One sample's estimate (wrenchd daemon / replay).\n"
-        "# wrench: tip wrench [N, N m], force in the base axes, torque about the tip.\n"
+        "# One sample's estimate (wrenchd daemon / replay), in float32 to keep logs small.\n"
+        "# The predicted joint torques are not stored: they are effort - external, with the\n"
+        "# effort of the sensor_msgs/JointState logged with the same stamp.\n"
         "std_msgs/Header header\n"
-        "geometry_msgs/Wrench wrench\n"
+        "float32[3] force      # tip force [N] in the base axes\n"
+        "float32[3] torque     # tip torque [N m] about the tip\n"
         "bool free             # the gate's verdict: free motion, no contact\n"
-        "float64 score         # the gate's score (capped at 1e9)\n"
+        "float32 score         # the gate's score (capped at 1e9)\n"
         "int64 model_version   # version of the correction net that estimated\n"
         "bool restarted        # the estimator's state restarted at this sample\n"
-        "float64[6] predicted  # predicted joint torques [N m; N on the insertion joint]\n"
-        "float64[6] external   # measured minus predicted joint torques [N m; N]\n"),
+        "float32[6] external   # measured minus predicted joint torques [N m; N on the "
+        "insertion joint]\n"),
     EVENT: (
         "# Something that happened: error, gap, contact_start, contact_end, drift, round,\n"
         "# model, setup_change, log_error, ...\n"
@@ -185,14 +189,38 @@ def serialize(message) -> bytes:
     return bytes(typestore().serialize_cdr(message, message.__msgtype__))
 
 
-def deserialize(data: bytes, typename: str):
+@functools.lru_cache(maxsize=16)
+def _file_typestore(typename: str, definition: str):
+    """A type store holding ``typename`` as ``definition`` (a file's ``ros2msg`` schema) says,
+    and the types that definition carries with it."""
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+    store = get_typestore(Stores.EMPTY)
+    try:
+        store.register(get_types_from_msg(definition, typename))
+    except Exception as exc:  # noqa: BLE001 - rosbags raises its own parse and type errors
+        raise DataError(f"cannot read the definition of {typename}: "
+                        f"{type(exc).__name__}: {exc}") from None
+    return store
+
+
+def deserialize(data: bytes, typename: str, definition: str | bytes | None = None):
     """The ``typename`` message in ``data`` (CDR).
 
+    ``definition``: the ``ros2msg`` schema the file stores with the message. A file written
+    with another definition of the type than today's (an earlier version's) is decoded with
+    its own; None or today's: :data:`MSG_TEXT`'s.
+
     Raises:
-        DataError: ``data`` is not a CDR ``typename``.
+        DataError: ``data`` is not a CDR ``typename``, or ``definition`` is not one.
     """
+    if isinstance(definition, (bytes, bytearray, memoryview)):
+        definition = bytes(definition).decode(errors="replace")
+    ours = definition is None or (typename in MSG_TEXT
+                                  and definition == full_definition(typename))
+    store = typestore() if ours else _file_typestore(typename, definition)
     try:
-        return typestore().deserialize_cdr(bytes(data), typename)
+        return store.deserialize_cdr(bytes(data), typename)
     except Exception as exc:  # noqa: BLE001 - rosbags raises struct/index/unicode errors
         raise DataError(f"not a CDR {typename}: {type(exc).__name__}: {exc}") from None
 

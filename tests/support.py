@@ -92,7 +92,8 @@ def read_mcap(path: Path) -> dict[str, list[bytes]]:
         for schema, channel, message in make_reader(f).iter_messages():
             data = message.data
             if channel.message_encoding != "json":
-                data = orjson.dumps(message_fields(channel.message_encoding, schema.name, data))
+                data = orjson.dumps(message_fields(channel.message_encoding, schema.name, data,
+                                                   schema.data))
             out.setdefault(channel.topic, []).append(data)
     return out
 

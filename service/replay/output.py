@@ -48,8 +48,7 @@ def write_replay_mcap(path: str | os.PathLike[str], r: ReplayResult,
                     _event(w, ids[TOPIC_EVENTS], events[ei])
                     ei += 1
                 payload = estimate_record(s, "psm_base", r.wrench[k], r.free[k], score[k],
-                                          r.model_version[k], r.restarted[k], r.predicted[k],
-                                          r.external[k])
+                                          r.model_version[k], r.restarted[k], r.external[k])
                 w.add_message(ids[TOPIC_ESTIMATE], s, payload, s)
             for ev in events[ei:]:
                 _event(w, ids[TOPIC_EVENTS], ev)

@@ -38,7 +38,7 @@ def estimate_payload(est: Estimate, frame_id: str = "psm_base") -> tuple[str, tu
     writer (:func:`wrenchd.adapters.mcap_log.format_record` makes the bytes)."""
     return ("estimate", (est.stamp_ns, frame_id, est.wrench.tolist(), bool(est.free),
                          float(est.score), int(est.model_version), bool(est.restarted),
-                         est.predicted_torque.tolist(), est.external_torque.tolist()))
+                         est.external_torque.tolist()))
 
 
 

@@ -1,5 +1,5 @@
 """The daemon's MCAP log: a ROS 2 bag that ROS tools' libraries decode, flushed each second,
-readable after a crash, rotated, never fatal, smaller than the former JSON log."""
+readable after a crash, rotated, never fatal, smaller than the former logs."""
 
 import shutil
 
@@ -11,6 +11,7 @@ from rosbags.highlevel import AnyReader
 from rosbags.rosbag2 import Reader
 from rosbags.typesys import Stores, get_typestore
 
+from tests.adapters.float64_log import write_float64_daemon_log
 from tests.adapters.json_mcap import write_json_daemon_log
 from wrenchd.adapters import ros2_msgs as ros2
 from wrenchd.adapters.mcap_log import (TOPIC_ESTIMATE, TOPIC_EVENTS, TOPIC_STATUS, TOPIC_TYPES,
@@ -36,7 +37,7 @@ def write_samples(log: McapLog, clock: Clock, start: int, n: int, rate: float = 
         log.write(TOPIC_JOINT_STATES, ns, encode_joint_state(
             "json", ns, JOINT_NAMES, np.full(6, 0.1), np.zeros(6), np.ones(6)))
         log.write(TOPIC_ESTIMATE, ns, estimate_record(ns, "psm_base", np.full(6, float(i)), True,
-                                                      0.5, 0, False, np.zeros(6), np.ones(6)))
+                                                      0.5, 0, False, np.ones(6)))
         clock.now = (i + 1) / rate
         log.tick()
 
@@ -110,7 +111,7 @@ def _log_session(tmp_path, seconds: float = 4.0):
             "json", ns, js.names, js.position[i], js.velocity[i], js.effort[i]))
         assert log.write(TOPIC_ESTIMATE, ns, estimate_record(
             ns, "psm_base", truth.external_wrench[i], not truth.in_contact[i], 0.1 * i, 3,
-            i == 0, truth.internal_torque[i], truth.external_torque[i]))
+            i == 0, truth.external_torque[i]))
         if i % 200 == 100:
             assert log.write(TOPIC_EVENTS, ns, orjson.dumps({"t": float(js.t[i]), "kind": "gap",
                                                              "gap_s": 0.02}))
@@ -136,14 +137,14 @@ def test_the_log_is_a_ros2_bag_that_ros_tools_libraries_decode(tmp_path):
         for connection, _, raw in bag.messages():
             got.setdefault(connection.topic, []).append(bag.deserialize(raw, connection.msgtype))
     np.testing.assert_array_equal([m.effort for m in got[TOPIC_JOINT_STATES]], js.effort)
-    est = got[TOPIC_ESTIMATE]
-    np.testing.assert_array_equal([[m.wrench.force.x, m.wrench.force.y, m.wrench.force.z,
-                                    m.wrench.torque.x, m.wrench.torque.y, m.wrench.torque.z]
-                                   for m in est], truth.external_wrench)
-    np.testing.assert_array_equal([m.predicted for m in est], truth.internal_torque)
-    np.testing.assert_array_equal([m.external for m in est], truth.external_torque)
+    est = got[TOPIC_ESTIMATE]                              # float32: the values rounded once
+    np.testing.assert_array_equal([[*m.force, *m.torque] for m in est],
+                                  truth.external_wrench.astype(np.float32))
+    np.testing.assert_array_equal([m.external for m in est],
+                                  truth.external_torque.astype(np.float32))
+    assert not any(hasattr(m, "predicted") for m in est)  # effort - external: not stored
     assert [m.free for m in est] == (~truth.in_contact).tolist()
-    assert est[7].score == 0.1 * 7 and est[7].model_version == 3
+    assert est[7].score == np.float32(0.1 * 7) and est[7].model_version == 3
     assert est[0].restarted and not est[1].restarted and est[5].header.frame_id == "psm_base"
     assert [m.kind for m in got[TOPIC_EVENTS]] == ["gap"] * 4
     assert orjson.loads(got[TOPIC_EVENTS][1].json)["t"] == js.t[300]
@@ -157,9 +158,9 @@ def test_the_log_is_a_ros2_bag_that_ros_tools_libraries_decode(tmp_path):
             assert schema.name == TOPIC_TYPES[channel.topic] and schema.encoding == "ros2msg"
             decoded.setdefault(channel.topic, []).append((msg, message, schema))
     msg, message, schema = decoded[TOPIC_ESTIMATE][9]
-    assert list(msg.external) == truth.external_torque[9].tolist()
-    fields = message_fields("cdr", schema.name, message.data)
-    assert fields["wrench"]["torque"]["z"] == truth.external_wrench[9, 5]
+    assert list(msg.external) == truth.external_torque[9].astype(np.float32).tolist()
+    fields = message_fields("cdr", schema.name, message.data, schema.data)
+    assert fields["torque"][2] == np.float32(truth.external_wrench[9, 5])
     _, message, schema = decoded[TOPIC_EVENTS][0]
     assert message_fields("cdr", schema.name, message.data) == {"t": js.t[100], "kind": "gap",
                                                                 "gap_s": 0.02}
@@ -187,12 +188,15 @@ def test_inputs_are_kept_exactly_and_what_is_no_message_is_refused(tmp_path):
     np.testing.assert_array_equal(first.effort, q * 3)
 
 
-def test_the_ros2_log_is_smaller_than_the_former_json_log(tmp_path):
-    """Per sample, the same joint states and estimates as a ROS 2 log and as the former JSON
-    log (JSON joint states as received, orjson estimates)."""
+def test_the_ros2_log_is_smaller_than_the_former_logs(tmp_path):
+    """Per sample, the same joint states and estimates as today's ROS 2 log (float32
+    estimates without the predicted torques), as the ROS 2 log of float64 estimates before it
+    and as the former JSON log (JSON joint states as received, orjson estimates)."""
     sim, log = _log_session(tmp_path / "ros2", seconds=10.0)
-    old = tmp_path / "json.mcap"
-    write_json_daemon_log(old, sim, estimates=sim.truth)
     n = len(sim.joint_states)
-    new_bps, old_bps = log.path.stat().st_size / n, old.stat().st_size / n
-    assert new_bps < 0.9 * old_bps, (new_bps, old_bps)          # 246 and 280 B here
+    old_json, old_f64 = tmp_path / "json.mcap", tmp_path / "float64.mcap"
+    write_json_daemon_log(old_json, sim, estimates=sim.truth)
+    write_float64_daemon_log(old_f64, sim, sim.truth)
+    new_bps, f64_bps, json_bps = (p.stat().st_size / n for p in (log.path, old_f64, old_json))
+    assert new_bps < 0.85 * f64_bps < 0.85 * json_bps, (new_bps, f64_bps, json_bps)
+    assert new_bps < 220, new_bps                        # 195, 245 and 280 B here

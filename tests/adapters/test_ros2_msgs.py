@@ -25,9 +25,9 @@ def test_standard_texts_have_the_fields_of_ros2_humble(typename):
 
 
 def test_full_definition_follows_rosbag2s_layout():
-    text = ros2.full_definition(ros2.ESTIMATE)
+    text = ros2.full_definition(ros2.WRENCH_STAMPED)
     sections = text.split("\n" + "=" * 80 + "\n")
-    assert sections[0] == ros2.MSG_TEXT[ros2.ESTIMATE]          # the type first, no delimiter
+    assert sections[0] == ros2.MSG_TEXT[ros2.WRENCH_STAMPED]    # the type first, no delimiter
     named = [s.split("\n", 1)[0] for s in sections[1:]]
     # depth first, each dependency once, a type's direct dependencies in name order, each
     # named as the fields name it (what rosbag2 writes, what Foxglove's parser matches)
@@ -55,13 +55,15 @@ def test_messages_from_fields_take_ros_defaults_and_refuse_unknown_fields():
     back = ros2.to_fields(ros2.deserialize(ros2.serialize(msg), ros2.ESTIMATE))
     assert back["header"] == {"stamp": {"sec": 3, "nanosec": 0}, "frame_id": ""}
     assert back["external"] == [1.0, 2.0, 3.0, 4.0, 5.0, 6.0]
-    assert back["predicted"] == [0.0] * 6 and back["score"] == 0.0 and back["free"] is True
+    assert back["force"] == [0.0] * 3 and back["score"] == 0.0 and back["free"] is True
     effects = ros2.from_fields(ros2.JOINT_TORQUE_TRUTH, {"effects": [{"name": "seal"}]}).effects
     assert effects[0].name == "seal" and np.array_equal(effects[0].torque, np.zeros(6))
     with pytest.raises(DataError, match=r"no field\(s\) \['speed'\]"):
         ros2.from_fields(ros2.ESTIMATE, {"speed": 1})
-    with pytest.raises(DataError, match="predicted must be 6 numbers"):
-        ros2.from_fields(ros2.ESTIMATE, {"predicted": [1, 2]})
+    with pytest.raises(DataError, match="external must be 6 numbers"):
+        ros2.from_fields(ros2.ESTIMATE, {"external": [1, 2]})
+    with pytest.raises(DataError, match=r"no field\(s\) \['predicted'\]"):   # effort - external
+        ros2.from_fields(ros2.ESTIMATE, {"predicted": [0] * 6})
     with pytest.raises(DataError, match="header must be an object"):
         ros2.from_fields(ros2.ESTIMATE, {"header": 5})
 
@@ -71,3 +73,26 @@ def test_cdr_is_told_from_json_and_garbage_is_a_data_error():
     assert ros2.is_cdr(data) and not ros2.is_cdr(b'{"a": 1}') and not ros2.is_cdr(b" {}")
     with pytest.raises(DataError, match="not a CDR wrenchd_msgs/msg/Estimate"):
         ros2.deserialize(data[:6], ros2.ESTIMATE)
+
+
+def test_a_message_decodes_with_the_definition_its_file_stores():
+    """An estimate written with the former float64 definition reads back with it, today's with
+    today's; a definition that does not parse is a data error."""
+    from tests.adapters.float64_log import DEFINITION_FLOAT64, _store, estimate_float64
+
+    old = estimate_float64(_store(), 3_000_000_001, np.arange(6.0) / 3, True, 0.25, 7, False,
+                           np.full(6, 1 / 3), np.full(6, -1 / 7))
+    msg = ros2.deserialize(old, ros2.ESTIMATE, DEFINITION_FLOAT64.encode())
+    assert msg.wrench.torque.z == 5 / 3 and msg.model_version == 7 and msg.score == 0.25
+    np.testing.assert_array_equal(msg.predicted, np.full(6, 1 / 3))     # float64, exact
+    np.testing.assert_array_equal(msg.external, np.full(6, -1 / 7))
+    new = ros2.serialize(ros2.from_fields(ros2.ESTIMATE, {"force": [1 / 3, 0, 0],
+                                                          "external": [-1 / 7] * 6}))
+    assert len(new) < 0.5 * len(old)                       # float32, without predicted
+    for definition in (None, ros2.full_definition(ros2.ESTIMATE)):
+        back = ros2.deserialize(new, ros2.ESTIMATE, definition)
+        assert back.force[0] == np.float32(1 / 3) and back.external.dtype == np.float32
+    with pytest.raises(DataError, match="not a CDR"):         # today's type, yesterday's bytes
+        ros2.deserialize(old[:40], ros2.ESTIMATE)
+    with pytest.raises(DataError, match="cannot read the definition"):
+        ros2.deserialize(new, ros2.ESTIMATE, "float64[ broken\n")

@@ -174,9 +174,8 @@ def _daemon_log(path_dir: Path, session) -> Path:
         stamp = int(round(js.t[i] * 1e9))
         log.write(TOPIC_JOINT_STATES, stamp, encode_joint_state(
             "json", stamp, js.names, js.position[i], js.velocity[i], js.effort[i]))
-        log.write_json(TOPIC_ESTIMATE, stamp, {"header": {}, "wrench": {}, "free": True,
-                                               "model_version": 0, "predicted": [0] * 6,
-                                               "external": [0] * 6})
+        log.write_json(TOPIC_ESTIMATE, stamp, {"header": {}, "force": [0] * 3, "free": True,
+                                               "model_version": 0, "external": [0] * 6})
         clock[0] = js.t[i]
         log.tick()
     log.close()

@@ -29,7 +29,7 @@ def put_samples(writer: LogWriterProcess, log: McapLog, start: int, n: int) -> N
                    ("joint_state", (ns, list(JOINT_NAMES), q, [0.0] * 6, [1.0] * 6, "base")))
         writer.put(log, TOPIC_ESTIMATE, ns,
                    ("estimate", (ns, "psm_base", [float(i)] * 6, True, 0.5, 3, False,
-                                 [0.0] * 6, [1.0] * 6)))
+                                 [1.0] * 6)))
 
 
 def messages(path):
@@ -68,7 +68,7 @@ def test_records_are_formatted_and_written_by_the_process(tmp_path):
     np.testing.assert_allclose(session.joint_states.position[7], [0.7] * 6)
     est = [d for topic, _, d in messages(logs[0].path) if topic == TOPIC_ESTIMATE]
     assert est[5] == estimate_record(int(5 * 5e6), "psm_base", [5.0] * 6, True, 0.5, 3, False,
-                                     np.zeros(6), np.ones(6))
+                                     np.ones(6))
     js = [d for topic, _, d in messages(logs[1].path) if topic == TOPIC_JOINT_STATES]
     assert js[2] == encode_joint_state("cdr", int(2 * 5e6), JOINT_NAMES, [0.2] * 6,
                                        np.zeros(6), np.ones(6), "base")

@@ -14,6 +14,7 @@ from rosbags.rosbag2 import Reader
 from rosbags.typesys import Stores, get_typestore
 
 from tests.support import free_port
+from wrenchd.adapters.log_estimates import read_logged_estimates
 from wrenchd.service.replay.source import load_session
 
 
@@ -55,11 +56,16 @@ def test_serve_writes_ros2_bags_that_rosbags_reads(tmp_path):
                                rtol=2.0**-33, atol=0)    # the session rounds to 32 bits
     est = daemon["/wrenchd/estimate"]
     assert [e.header.stamp for e in est] == [m.header.stamp for m in logged]
-    wrench = np.array([[e.wrench.force.x, e.wrench.force.y, e.wrench.force.z] for e in est])
-    assert np.isfinite(wrench).all() and np.abs(wrench).max() > 0
-    torques = np.array([[e.predicted, e.external] for e in est])
-    assert torques.shape == (n, 2, 6) and np.isfinite(torques).all()
+    wrench = np.array([[*e.force, *e.torque] for e in est])
+    assert wrench.shape == (n, 6) and np.isfinite(wrench).all() and np.abs(wrench).max() > 0
+    assert np.array([e.external for e in est]).shape == (n, 6)
     assert all(e.model_version >= 0 for e in est)
+    # the predicted torques, not stored, are the logged effort minus the external torques
+    logged_est = read_logged_estimates(log)
+    assert not logged_est.predicted_stored and len(logged_est) == n
+    np.testing.assert_array_equal(logged_est.predicted, np.array([m.effort for m in logged])
+                                  - np.array([e.external for e in est], dtype=np.float64))
+    assert np.isfinite(logged_est.predicted).all()
     status = orjson.loads(daemon["/wrenchd/status"][-1].json)
     assert status["counters"]["estimated"] <= n
     truth = robot["/psm/truth/wrench"]
