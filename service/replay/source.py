@@ -100,13 +100,15 @@ def logged_setup_changes(path: str) -> list[tuple[float, dict]]:
 
     out = []
     with open(path, "rb") as f:
-        # read in order, to the end or to where a crashed daemon's file stops
+        # read in file order (sorting by log time would read the whole file first and keep
+        # nothing of a crashed daemon's), to the end or to where the file stops
         try:
             for schema, channel, message in NonSeekingReader(f).iter_messages(
-                    topics=[TOPIC_EVENTS]):
+                    topics=[TOPIC_EVENTS], log_time_order=False):
                 try:
                     event = message_fields(channel.message_encoding,
-                                           schema.name if schema else "", message.data)
+                                           schema.name if schema else "", message.data,
+                                           schema.data if schema else None)
                 except DataError:
                     continue
                 if isinstance(event, dict) and event.get("kind") == "setup_change":

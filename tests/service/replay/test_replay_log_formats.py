@@ -1,6 +1,7 @@
-"""Replay reads daemon logs of both formats: the ROS 2 log that McapLog writes today and the
-former JSON log (written here in its layout), with their set-up change events; and writes its
-own output as a ROS 2 bag."""
+"""Replay reads daemon logs of every format: the ROS 2 log that McapLog writes today, the
+ROS 2 log of float64 estimates before it and the former JSON log (written here in their
+layouts), with their set-up change events, also from a log its daemon never finished; and
+writes its own output as a ROS 2 bag."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ import torch
 from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
 
+from tests.adapters.float64_log import write_float64_daemon_log
 from tests.adapters.json_mcap import write_json_daemon_log
 from wrenchd.adapters.mcap_log import TOPIC_EVENTS, TOPIC_JOINT_STATES, LogConfig, McapLog
 from wrenchd.adapters.messages import encode_joint_state
@@ -33,8 +35,9 @@ def fs():
     return load_pretrained("seal")
 
 
-def _ros2_log(directory, session) -> str:
-    """The daemon's log of ``session``: JSON inputs as received, the set-up change event."""
+def _ros2_log(directory, session, finish: bool = True) -> str:
+    """The daemon's log of ``session``: JSON inputs as received, the set-up change event;
+    ``finish=False``: flushed but never finished, as its daemon killed."""
     clock = [0.0]
     log = McapLog("PSM1", LogConfig(directory=str(directory)), clock=lambda: clock[0])
     js = session.joint_states
@@ -46,7 +49,10 @@ def _ros2_log(directory, session) -> str:
             "json", ns, js.names, js.position[i], js.velocity[i], js.effort[i]))
         clock[0] = js.t[i]
         log.tick()
-    log.close()
+    if finish:
+        log.close()
+    else:
+        log.flush()
     return str(log.path)
 
 
@@ -76,5 +82,27 @@ def test_a_ros2_log_and_a_former_json_log_replay_alike(tmp_path, fs):
                      if c.topic == "/wrenchd/estimate"]
     assert topics == {"/wrenchd/estimate": "wrenchd_msgs/msg/Estimate",
                       "/wrenchd/events": "wrenchd_msgs/msg/Event"}
-    np.testing.assert_array_equal([[e.wrench.force.x, e.wrench.force.y, e.wrench.force.z]
-                                   for e in estimates], r_new.wrench[:, :3])
+    np.testing.assert_array_equal([e.force for e in estimates],
+                                  r_new.wrench[:, :3].astype(np.float32))
+
+
+def test_a_log_of_float64_estimates_replays_as_todays(tmp_path, fs):
+    src = load_session("sim:trocar:3:3")
+    new = load_session(_ros2_log(tmp_path / "new", src))
+    old_path = tmp_path / "float64.mcap"
+    write_float64_daemon_log(old_path, src, src.truth)
+    old = load_session(str(old_path))
+    np.testing.assert_array_equal(old.joint_states.effort, src.joint_states.effort)
+    frozen = get_policy("frozen").configure(CONFIG)
+    r_new, r_old = replay(new, fs, frozen), replay(old, fs, frozen)
+    assert len(r_old.t) == len(src.joint_states)
+    np.testing.assert_array_equal(r_old.wrench, r_new.wrench)
+
+
+def test_a_log_its_daemon_never_finished_still_announces_its_setup_changes(tmp_path):
+    src = load_session("sim:trocar:4:3")
+    path = _ros2_log(tmp_path, src, finish=False)
+    session = load_session(path)
+    assert 0 < len(session.joint_states) <= len(src.joint_states)
+    detail = {k: v for k, v in EVENT.items() if k not in ("t", "kind")}
+    assert announced_changes(session) == [(CHANGE_T, detail)]
