@@ -18,6 +18,7 @@ import json
 import os
 import pickle
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import torch
@@ -80,6 +81,40 @@ def save_checkpoint(path: str | os.PathLike, model: torch.nn.Module,
         "data": _plain(data, "data"), "validation": _plain(validation, "validation"),
     }
     torch.save(payload, os.fspath(path))
+
+
+def prune_checkpoints(directory: str | os.PathLike, pattern: str, keep: int,
+                      protect: set[str] = frozenset()) -> list[tuple[str, int]]:
+    """Remove the checkpoints named ``pattern`` (a glob) in ``directory`` but the newest
+    ``keep`` (by modification time, then name) and those in ``protect`` (paths).
+
+    Returns the removed files and their sizes [B], oldest first.
+
+    Raises:
+        OSError: a file could not be removed (those before it are; a file removed by someone
+            else meanwhile is skipped).
+    """
+    if keep < 1:
+        raise ValueError(f"keep must be at least 1, got {keep}")
+    files = []
+    for path in Path(directory).glob(pattern):
+        try:
+            st = path.stat()
+        except FileNotFoundError:
+            continue
+        files.append((st.st_mtime, path.name, st.st_size, path))
+    files.sort()
+    kept = {os.path.abspath(p) for p in protect}
+    removed = []
+    for _, _, size, path in files[:max(len(files) - keep, 0)]:
+        if os.path.abspath(path) in kept:
+            continue
+        try:
+            path.unlink()
+        except FileNotFoundError:
+            continue
+        removed.append((str(path), size))
+    return removed
 
 
 def save_result(path: str | os.PathLike, result: TrainResult) -> None:

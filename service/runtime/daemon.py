@@ -136,8 +136,11 @@ class Daemon:
         if adapt:
             frac = min(c.max_cpu_fraction for c in adapt.values())
             norms = {name: normalisation_of(self.models[name]) for name in adapt}
-            self.worker = WorkerProcess(adapt, s.effective_models_dir(), frac, norms,
-                                        cpus=s.cpus.worker)
+            self.worker = WorkerProcess(
+                adapt, s.effective_models_dir(), frac, norms, cpus=s.cpus.worker,
+                keep_checkpoints=s.keep_checkpoints,
+                pinned_checkpoints={a.name: a.corr_checkpoint for a in s.arms
+                                    if a.corr_checkpoint})
         # before the real-time window: the live view's server threads stay in the normal class
         self.live = open_live_view(s.foxglove)
         if self.realtime_priority is not None:

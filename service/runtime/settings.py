@@ -271,6 +271,11 @@ class ServiceSettings(BaseSettings):
     simulator: SimulatorSettings = Field(default_factory=SimulatorSettings)
     models_dir: str | None = Field(default=None,
                                    description="adapted Corr versions (default: log dir/models)")
+    keep_checkpoints: int | None = Field(
+        default=None, ge=1,
+        description="keep each arm's newest N adapted Corr versions in models_dir, and the one "
+                    "being served; older ones are removed at each new version (None: keep "
+                    "every one)")
     status_interval_s: float = Field(default=1.0, gt=0.0, description="status log period [s]")
     cpus: CpuPlacement = Field(default_factory=CpuPlacement)
     ros: RosSettings = Field(default_factory=RosSettings)

@@ -10,7 +10,10 @@ reports it and goes on estimating with the last model.
 
 Accepted versions are checkpointed as ``{models_dir}/{arm}/corr-v{N:04d}.pt`` (the
 estimator's safe checkpoint format) so any version can be loaded again (``corr_checkpoint``
-in the arm's settings). The worker exits by itself when the daemon dies (``kill -9``
+in the arm's settings). With ``keep_checkpoints`` set, each save then removes the arm's older
+ones but the newest ``keep_checkpoints``, the one the pipeline serves (it says which once it
+has swapped, :class:`ProcessAdaptation`), those it has not swapped to yet, and the arm's
+configured ``corr_checkpoint``. The worker exits by itself when the daemon dies (``kill -9``
 included): it watches its parent process.
 
 Stopping: the daemon sends ``stop`` (:meth:`WorkerProcess.stop`), which the loop sees at its
@@ -61,10 +64,12 @@ FLUSH_TIMEOUT_S = 0.5
 
 def _main(inbox: mp.Queue, outbox: mp.Queue, configs: dict[str, dict[str, Any]],
           normalisations: dict[str, dict[str, np.ndarray]], models_dir: str | None,
-          max_cpu_fraction: float, cpus: list[int] | None = None) -> None:
+          max_cpu_fraction: float, cpus: list[int] | None = None,
+          checkpoints: Checkpoints | None = None) -> None:
     """The worker process: :func:`_run` until stopped (or orphaned), then an immediate exit
     that waits neither for undelivered results nor for the interpreter's teardown."""
-    _run(inbox, outbox, configs, normalisations, models_dir, max_cpu_fraction, cpus)
+    _run(inbox, outbox, configs, normalisations, models_dir, max_cpu_fraction, cpus,
+         checkpoints)
     # Hand over what was queued, whole: an exit in the middle of a message would leave half of
     # it in the pipe, and the daemon, which reads while it waits, would wait for the rest for
     # ever. Only a daemon that no longer reads makes this wait last its full bound.
@@ -80,12 +85,55 @@ def _main(inbox: mp.Queue, outbox: mp.Queue, configs: dict[str, dict[str, Any]],
     os._exit(0)
 
 
+class Checkpoints:
+    """Which of an arm's saved Corr versions the worker may remove (module docstring).
+
+    Args:
+        keep: the newest versions kept per arm (None: every one).
+        pinned: per arm, a checkpoint never removed (its configured ``corr_checkpoint``).
+    """
+
+    PATTERN = "corr-v*.pt"
+
+    def __init__(self, keep: int | None = None, pinned: dict[str, str] | None = None) -> None:
+        self.keep, self.pinned = keep, dict(pinned or {})
+        self._pending: dict[str, list[tuple[int, str]]] = {}   # saved, not yet served
+        self._serving: dict[str, str | None] = {}
+
+    def saved(self, arm: str, version: int, path: Path) -> None:
+        self._pending.setdefault(arm, []).append((version, str(path)))
+
+    def served(self, arm: str, version: int | None) -> None:
+        """The pipeline swapped to ``version`` (None: to a fresh, unsaved Corr)."""
+        if version is None:
+            self._serving[arm] = None
+            return
+        pending = self._pending.get(arm, [])
+        for i, (v, path) in enumerate(pending):        # results are applied in order
+            if v == version:
+                self._serving[arm] = path
+                del pending[:i + 1]
+                return
+
+    def prune(self, arm: str, directory: Path) -> list[tuple[str, int]]:
+        """Remove the arm's checkpoints beyond the newest ``keep`` but the protected ones."""
+        if self.keep is None:
+            return []
+        from wrenchd.models.estimator.checkpoint import prune_checkpoints
+
+        protect = {p for _, p in self._pending.get(arm, [])}
+        protect |= {p for p in (self._serving.get(arm), self.pinned.get(arm)) if p}
+        return prune_checkpoints(directory, self.PATTERN, self.keep, protect)
+
+
 def _run(inbox: mp.Queue, outbox: mp.Queue, configs: dict[str, dict[str, Any]],
          normalisations: dict[str, dict[str, np.ndarray]], models_dir: str | None,
-         max_cpu_fraction: float, cpus: list[int] | None = None) -> None:
+         max_cpu_fraction: float, cpus: list[int] | None = None,
+         checkpoints: Checkpoints | None = None) -> None:
     """Worker process main loop; returns when stopped or when the daemon is gone."""
     if cpus is not None:
         os.sched_setaffinity(0, cpus)
+    checkpoints = checkpoints or Checkpoints()
     from wrenchd.models.estimator.checkpoint import save_checkpoint
     from wrenchd.models.adaptation.host import AdapterHost
     from wrenchd.service.runtime.scheduling import normal_scheduling, one_compute_thread
@@ -125,6 +173,11 @@ def _run(inbox: mp.Queue, outbox: mp.Queue, configs: dict[str, dict[str, Any]],
             return                          # before the samples queued with it
         now = time.monotonic() - t0
         for kind, arm, payload in messages:
+            if kind == "serving":           # the pipeline swapped to a version
+                checkpoints.served(arm, payload)
+                continue
+            if kind == "reset":             # the pipeline serves a fresh Corr
+                checkpoints.served(arm, None)
             host.call(arm, kind, now, payload)
         if time.monotonic() < busy_until:
             continue
@@ -144,9 +197,14 @@ def _run(inbox: mp.Queue, outbox: mp.Queue, configs: dict[str, dict[str, Any]],
                     save_checkpoint(path, host.adapters[arm].corr,
                                     data={"source": "wrenchd lifelong adaptation", "arm": arm},
                                     validation=result.summary())
+                    checkpoints.saved(arm, result.version, path)
                 except OSError as exc:
                     outbox.put(("error", arm, f"cannot checkpoint version {result.version}: "
                                               f"{exc}"))
+                try:
+                    checkpoints.prune(arm, Path(models_dir) / arm)
+                except OSError as exc:
+                    outbox.put(("error", arm, f"cannot remove an old checkpoint: {exc}"))
             outbox.put(("round", arm, result))
             spent = time.monotonic() - start
             busy_until = max(busy_until, time.monotonic()
@@ -159,14 +217,16 @@ class WorkerProcess:
     def __init__(self, configs: dict[str, AdaptationConfig], models_dir: str | None,
                  max_cpu_fraction: float = 0.5,
                  normalisations: dict[str, dict[str, np.ndarray]] | None = None,
-                 cpus: list[int] | None = None) -> None:
+                 cpus: list[int] | None = None, keep_checkpoints: int | None = None,
+                 pinned_checkpoints: dict[str, str] | None = None) -> None:
         ctx = mp.get_context("spawn")
         self.inbox: mp.Queue = ctx.Queue()
         self.outbox: mp.Queue = ctx.Queue()
         self.process = ctx.Process(
             target=_main, name="wrenchd-adaptation", daemon=True,
             args=(self.inbox, self.outbox, {a: c.model_dump() for a, c in configs.items()},
-                  normalisations or {}, models_dir, max_cpu_fraction, cpus))
+                  normalisations or {}, models_dir, max_cpu_fraction, cpus,
+                  Checkpoints(keep_checkpoints, pinned_checkpoints)))
         self.process.start()
         self._results: dict[str, list[tuple[str, Any]]] = {arm: [] for arm in configs}
         self._stop_sent = False
@@ -307,6 +367,10 @@ class ProcessAdaptation:
         for kind, payload in self.worker.poll(self.arm):
             if kind == "round":
                 results.append(payload)
+                if payload.accepted and payload.state_dict is not None:
+                    # the pipeline swaps to it now (ArmPipeline.apply): its checkpoint is
+                    # the one served, which the worker keeps
+                    self.worker.send("serving", self.arm, payload.version)
             else:
                 self.errors.append(str(payload))
         return results

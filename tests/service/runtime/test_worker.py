@@ -1,6 +1,7 @@
 """The adaptation worker as a real process: rounds come back, a failing round is reported
 and the worker (and the last good model) carry on, and it stops cleanly."""
 
+import os
 import time
 
 import numpy as np
@@ -47,3 +48,46 @@ def test_worker_rounds_errors_and_stop(tmp_path):
         worker.close()
     assert not worker.alive
     assert np.isfinite(accepted[0].val_after)
+
+
+def test_the_worker_keeps_the_newest_checkpoints_and_the_served_one(tmp_path):
+    """keep_checkpoints = 2: older versions go at each save, but never the one the pipeline
+    serves, one it has not swapped to yet, nor the configured corr_checkpoint."""
+    models = tmp_path / "models" / "PSM1"
+    models.mkdir(parents=True)
+    day_ago = time.time() - 86400
+    earlier = models / "corr-v0007.pt"                   # an earlier run's version
+    pinned = models / "corr-v0003.pt"                    # the arm's corr_checkpoint
+    for path in (earlier, pinned):
+        path.write_bytes(b"an earlier run's checkpoint")
+        os.utime(path, (day_ago, day_ago))
+    cfg = AdaptationConfig(min_train_samples=200, interval_s=0.2, round_steps=10)
+    worker = WorkerProcess({"PSM1": cfg}, str(tmp_path / "models"), max_cpu_fraction=0.5,
+                           keep_checkpoints=2, pinned_checkpoints={"PSM1": str(pinned)})
+
+    def versions() -> set[int]:
+        return {int(p.stem.removeprefix("corr-v")) for p in models.glob("corr-v*.pt")}
+
+    try:
+        backend = ProcessAdaptation(worker, "PSM1")
+        backend.offer(*samples(2000))
+        time.sleep(0.3)
+        served = max(r.version for r in collect(backend, lambda rs: any(r.accepted
+                                                                        for r in rs))
+                     if r.accepted)                      # ticked: the pipeline serves it
+        # the pipeline lags (no tick): the served version stays, and those saved since
+        deadline = time.monotonic() + 30
+        while max(versions() - {3, 7}, default=0) < served + 2:
+            assert time.monotonic() < deadline, versions()
+            time.sleep(0.05)
+        saved = max(versions() - {3, 7})
+        assert set(range(served, saved + 1)) <= versions()
+        # it catches up, and new samples make new versions: the newest two and the served
+        backend.offer(*samples(2000))
+        latest = max(r.version for r in collect(backend, lambda rs: any(
+            r.accepted and r.version > saved + 1 for r in rs)) if r.accepted)
+    finally:
+        worker.close()
+    left = versions()
+    assert 3 in left and 7 not in left and not earlier.exists()
+    assert len(left - {3}) <= 3 and latest in left, left  # the newest two and the served one
