@@ -36,6 +36,11 @@ reader recovers every complete chunk. Rotation starts a new file after ``rotate_
 estimator: the log drops the file, counts what it could not write, reports the problem through
 :attr:`McapLog.problem` (cleared when a fresh file is open), and retries a fresh file every
 ``retry_s``.
+
+Disk budget: with ``max_total_bytes`` set, the daemon's log files in the directory are kept
+under it by removing the oldest closed ones (never an open one), after each rotation and every
+``budget_check_s`` (:mod:`wrenchd.adapters.log_budget`; the daemon's log writer process runs
+it). What was removed waits in :attr:`McapLog.removed` for the daemon to report it.
 """
 
 from __future__ import annotations
@@ -44,13 +49,14 @@ import json
 import math
 import os
 import time
+from collections import deque
 from pathlib import Path
 from typing import Any, Callable, IO
 
 import numpy as np
 import orjson
 from mcap.writer import CompressionType, Writer
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from wrenchd.adapters import ros2_msgs as ros2
 from wrenchd.adapters.mcap_session import SESSION_FORMAT, SESSION_METADATA_NAME, TOPIC_JOINT_STATES
@@ -180,6 +186,22 @@ class LogConfig(BaseModel):
     rotate_s: float = Field(default=3600.0, gt=0.0, description="new file after this long [s]")
     retry_s: float = Field(default=5.0, gt=0.0, description="retry after a write failure [s]")
     chunk_size: int = Field(default=1 << 20, ge=1024, description="max chunk [B]")
+    max_total_bytes: int | None = Field(
+        default=None, gt=0,
+        description="the daemon's log files in the directory total at most this [B]: past it "
+                    "the oldest closed ones are removed, each with a log_removed event (None: "
+                    "no limit)")
+    budget_check_s: float = Field(default=10.0, gt=0.0,
+                                  description="check the budget this often [s], and after "
+                                              "each rotation")
+
+    @model_validator(mode="after")
+    def _budget_holds_a_file(self) -> LogConfig:
+        if self.max_total_bytes is not None and self.max_total_bytes < self.rotate_mb * 1e6:
+            raise ValueError(f"max_total_bytes ({self.max_total_bytes} B) is smaller than one "
+                             f"file (rotate_mb = {self.rotate_mb:g} MB): the open file alone "
+                             f"would exceed it")
+        return self
 
 
 class McapLog:
@@ -207,6 +229,13 @@ class McapLog:
         self.refused = 0                      # records that were not a topic's message
         self.last_refusal: str | None = None
         self.problem: str | None = None       # set on failure, cleared when a file opens
+        # the disk budget's notices, oldest first, until reported: ("removed", path, bytes) or
+        # ("error", path, why) (log_budget.LogBudgets; the daemon's view: log_process)
+        self.removed: deque[tuple[str, str, Any]] = deque()
+        self.bytes_used: int | None = None     # the directory's log files [B], once checked
+        self.bytes_free: int | None = None     # free on the directory's file system [B]
+        self.removed_files = 0                 # removed by the budget (the daemon's count)
+        self.removed_bytes = 0
         self._opened_at = 0.0
         self._flushed_at = 0.0
         self._retry_at = 0.0
@@ -323,18 +352,34 @@ class McapLog:
             return False
         return self.write(topic, stamp_ns, payload)
 
-    def tick(self) -> None:
-        """Flush and rotate when due; call often (e.g. after each sample)."""
+    @property
+    def open_path(self) -> Path | None:
+        """The file being written, None between files."""
+        return self.path if self._writer is not None else None
+
+    @property
+    def open_bytes(self) -> int:
+        """Bytes written to the open file so far (0 between files)."""
+        try:
+            return self._file.tell() if self._writer is not None else 0
+        except (OSError, ValueError):
+            return 0
+
+    def tick(self) -> bool:
+        """Flush and rotate when due; call often (e.g. after each sample). True when it closed
+        the file (a rotation: the next record opens a new one)."""
         if self._writer is None:
-            return
+            return False
         now = self.clock()
         if now - self._flushed_at >= self.config.flush_interval_s:
             self.flush()
         if self._writer is None:
-            return
+            return False
         size_mb = self._file.tell() / 1e6 if self._file is not None else 0.0
         if size_mb >= self.config.rotate_mb or now - self._opened_at >= self.config.rotate_s:
             self.close()
+            return True
+        return False
 
 
 #: record makers a payload may name, so that what crosses to the log writer is plain values

@@ -157,9 +157,13 @@ class ArmRuntime:
             s["scheduling"] = thread_scheduling(self.estimation_tid)
         s["zenoh"] = dict(self.zenoh_links)
         s["keys"] = self.keys
-        s["log"] = {"path": str(self.log.path) if self.log.path else None,
-                    "written": self.log.written, "lost": self.log.lost,
-                    "problem": self.log.problem}
+        log = self.log
+        s["log"] = {"path": str(log.path) if log.path else None,
+                    "written": log.written, "lost": log.lost, "problem": log.problem,
+                    # the directory's log files (all arms') and its file system's free space
+                    "directory": log.config.directory, "bytes_used": log.bytes_used,
+                    "bytes_free": log.bytes_free, "max_total_bytes": log.config.max_total_bytes,
+                    "removed_files": log.removed_files, "removed_bytes": log.removed_bytes}
         s["adaptation_worker_alive"] = (self.pipeline.backend.worker.alive
                                         if isinstance(self.pipeline.backend, ProcessAdaptation)
                                         else None)
@@ -287,7 +291,8 @@ class ArmRuntime:
             self.internal_error(exc)
 
     def housekeeping(self, now: float) -> None:
-        """Once in a while: rate, status snapshot to the log and console, log problems."""
+        """Once in a while: rate, status snapshot to the log and console, log problems and
+        the files the disk budget removed."""
         if now >= self._next_status:
             est = self.pipeline.counters.estimated
             self.rate_hz = (est - self._count_at) / max(now - self._count_t, 1e-9)
@@ -305,6 +310,21 @@ class ArmRuntime:
                                         {"arm": self.name, "error": self.log.problem})])
         elif self.log.problem is None:                # a fresh file is open again
             self._log_problem_reported = False
+        if self.log.removed:                          # what the disk budget did
+            self._publish_events(self._budget_events())
+
+    def _budget_events(self) -> list[Event]:
+        """An event per notice of the log's disk budget: ``log_removed`` (path, bytes) for a
+        file it removed, ``log_error`` for one it could not."""
+        events, t = [], self.event_time()
+        while self.log.removed:
+            what, path, detail = self.log.removed.popleft()
+            if what == "removed":
+                events.append(Event(t, "log_removed", {"arm": self.name, "path": path,
+                                                       "bytes": detail}))
+            else:
+                events.append(Event(t, "log_error", {"arm": self.name, "error": detail}))
+        return events
 
     def _console(self, status: dict[str, Any]) -> None:
         est = self.last

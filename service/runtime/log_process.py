@@ -16,8 +16,13 @@ its pipe, writes what it received, finishes every file (summary and footer) and 
 adaptation worker, it ignores SIGINT and SIGTERM (Ctrl-C reaches the whole process group; it
 stops on the daemon's word), leaves the daemon's real-time class and runs on the worker's CPUs.
 
+The writer also keeps each log directory under its disk budget
+(:class:`~wrenchd.adapters.log_budget.LogBudgets`: after a rotation and every
+``budget_check_s``).
+
 The daemon's :class:`McapLog` objects stay its view of the logs: the writer reports each log's
-path, paths, written and lost counts and problem back every ``interval_s``, and the sender
+path, paths, written and lost counts, problem, the budget's notices (files removed, removals
+that failed) and the directory's bytes used and free back every ``interval_s``, and the sender
 thread copies them there (records the daemon could not hand over, queue full or writer gone,
 are added to ``lost``). A writer that died is reported as a log problem and started again after
 ``retry_s`` (its new file starts a new part of the session).
@@ -35,6 +40,7 @@ from collections import deque
 from pathlib import Path
 from typing import Any
 
+from wrenchd.adapters.log_budget import LogBudgets
 from wrenchd.adapters.mcap_log import LogConfig, McapLog, Payload, format_record
 from wrenchd.service.runtime.scheduling import normal_class, normal_scheduling
 
@@ -45,8 +51,11 @@ EXIT_TIMEOUT_S = 5.0
 
 
 def _state(log: McapLog) -> tuple:
+    """What the writer reports of ``log`` (its budget notices handed over once)."""
+    notices = list(log.removed)
+    log.removed.clear()
     return (str(log.path) if log.path else None, [str(p) for p in log.paths], log.written,
-            log.lost, log.problem)
+            log.lost, log.problem, notices, log.bytes_used, log.bytes_free)
 
 
 def _writer_main(specs: list[tuple[str, dict[str, Any], dict[str, Any]]], inbox, outbox,
@@ -59,6 +68,7 @@ def _writer_main(specs: list[tuple[str, dict[str, Any], dict[str, Any]]], inbox,
         os.sched_setaffinity(0, cpus)
     logs = [McapLog(arm, LogConfig(**config), metadata=metadata)
             for arm, config, metadata in specs]
+    budgets = LogBudgets(logs)
     errors = 0
     last_report = 0.0
     try:
@@ -80,11 +90,14 @@ def _writer_main(specs: list[tuple[str, dict[str, Any], dict[str, Any]]], inbox,
                         log.lost += 1
                         continue
                     log.write(topic, stamp_ns, data)
+            rotated = False
             for log in logs:
-                log.tick()
+                rotated |= log.tick()
+            budgets.tick(rotated)              # after a rotation, else every budget_check_s
             now = time.monotonic()
             if now - last_report >= interval_s:
                 last_report = now
+                budgets.refresh()
                 outbox.send(("state", [_state(log) for log in logs], errors))
     finally:
         for log in logs:
@@ -152,7 +165,7 @@ class LogWriterProcess:
         self._retry_at = time.monotonic() + min(log.config.retry_s for log in self.logs)
 
     def _absorb(self, states: list[tuple], errors: int) -> None:
-        for i, (path, paths, written, lost, problem) in enumerate(states):
+        for i, (path, paths, written, lost, problem, notices, used, free) in enumerate(states):
             log = self.logs[i]
             log.path = Path(path) if path else None
             log.paths = self._paths_base[i] + [Path(p) for p in paths]
@@ -160,6 +173,12 @@ class LogWriterProcess:
             self._remote_lost[i] = self._lost_base[i] + lost
             log.lost = self._remote_lost[i] + self._local_lost[i]
             log.problem = problem
+            for notice in notices:             # the daemon reports them (ArmRuntime)
+                if notice[0] == "removed":
+                    log.removed_files += 1
+                    log.removed_bytes += notice[2]
+                log.removed.append(notice)
+            log.bytes_used, log.bytes_free = used, free
         self.errors = errors
 
     def _read_states(self, wait_s: float = 0.0) -> bool:

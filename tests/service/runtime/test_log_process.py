@@ -2,6 +2,7 @@
 are finished when the daemon dies, and a writer that dies is replaced."""
 
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -9,6 +10,7 @@ import textwrap
 import time
 
 import numpy as np
+import pytest
 from mcap.reader import make_reader
 
 from wrenchd.adapters.mcap_log import TOPIC_ESTIMATE, LogConfig, McapLog, estimate_record
@@ -126,3 +128,34 @@ def test_a_dead_writer_is_reported_and_replaced(tmp_path):
     assert second.joint_states.position[-1, 0] == 0.1 * 249
     assert log.written + log.lost >= 500 and log.lost >= 1
     assert decode_joint_state("cdr", messages(log.paths[1])[0][2]).frame_id == "base"
+
+
+def test_the_writer_keeps_the_disk_budget_and_tells_the_daemon(tmp_path):
+    budget = 60_000
+    log = McapLog("PSM1", LogConfig(directory=str(tmp_path), rotate_mb=0.02, chunk_size=4096,
+                                    max_total_bytes=budget, budget_check_s=0.2))
+    writer = LogWriterProcess([log])
+    rng = np.random.default_rng(0)
+    try:
+        for i in range(3000):           # noise: hardly compressed; handed over a few at a time
+            if i % 50 == 49:            # (the writer rotates between the batches it receives)
+                time.sleep(0.02)
+            ns = int(i * 5e6)
+            writer.put(log, TOPIC_JOINT_STATES, ns, ("joint_state", (
+                ns, list(JOINT_NAMES), *rng.normal(size=(3, 6)).tolist(), "base")))
+            writer.put(log, TOPIC_ESTIMATE, ns, ("estimate", (
+                ns, "psm_base", rng.normal(size=6).tolist(), True, 0.5, 3, False,
+                rng.normal(size=6).tolist())))
+        assert wait_for(lambda: log.written == 6000 and log.removed_files >= 3)
+        assert wait_for(lambda: log.bytes_free is not None)
+        assert 0 < log.bytes_used <= budget + 20_000 + 8192    # + the open file's growth
+        assert 0 < log.bytes_free == pytest.approx(shutil.disk_usage(tmp_path).free, rel=0.1)
+    finally:
+        writer.close()
+    notices = list(log.removed)                    # for the daemon to publish (ArmRuntime)
+    assert len(notices) == log.removed_files and notices[0][1] == str(log.paths[0])
+    assert sum(n[2] for n in notices) == log.removed_bytes
+    for what, path, size in notices:
+        assert what == "removed" and not os.path.exists(path) and size > 0
+    assert log.paths[-1].exists()                  # never the open file
+    assert sum(p.stat().st_size for p in tmp_path.glob("PSM1-*.mcap")) <= budget + 28_192
