@@ -15,7 +15,6 @@ Run by the bench as ``python -m wrenchd.service.bench.floor --listen ENDPOINT --
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
 import threading
 
@@ -25,6 +24,7 @@ import orjson
 from wrenchd.adapters.messages import encode_wrench
 from wrenchd.adapters.zenoh_io import ZenohConfig, open_session
 from wrenchd.service.runtime.intake import ChannelIntake
+from wrenchd.service.runtime.stopping import StopSignals
 from wrenchd.service.runtime.plumbing import SWITCH_INTERVAL_S, SampleRing
 
 _ZERO = np.zeros(6)
@@ -66,8 +66,6 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     sys.setswitchinterval(SWITCH_INTERVAL_S)
     stop, wake = threading.Event(), threading.Event()
-    signal.signal(signal.SIGINT, lambda *_: stop.set())
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
     session = open_session(ZenohConfig(listen=[args.listen]))
     pubs = {arm: session.declare_publisher(f"dvrk/{arm}/wrenchd/measured_cf")
             for arm in args.arms}
@@ -87,9 +85,11 @@ def main(argv: list[str] | None = None) -> int:
     for arm in args.arms:
         print(f"bench floor: {arm} listening", flush=True)
     try:
-        while not stop.wait(0.2):
-            pass
+        with StopSignals() as signals:        # the handler only flags (see stopping)
+            while not signals.wait(0.2):
+                pass
     finally:
+        stop.set()
         for sub in subs:
             sub.undeclare()
         if intake is not None:

@@ -42,15 +42,27 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run one verb; a :class:`WrenchdError` becomes its message on stderr and exit code 2."""
-    from wrenchd.service import provenance  # noqa: F401  (its run meter starts with the process)
+    """Run one verb; a :class:`WrenchdError` becomes its message on stderr and exit code 2.
 
-    args = build_parser().parse_args(argv)
-    try:
-        return int(args.func(args) or 0)
-    except WrenchdError as exc:
-        print(f"wrenchd: error: {exc}", file=sys.stderr)
-        return 2
+    SIGINT and SIGTERM are a stop request for the whole run
+    (:mod:`wrenchd.service.runtime.stopping`): the daemon, the robot and the streaming verbs
+    stop cleanly and exit 0; a verb that computes stops at its next unit of work with exit
+    status 128 + the signal's number, writing no partial result."""
+    from wrenchd.service import provenance  # noqa: F401  (its run meter starts with the process)
+    from wrenchd.service.runtime.stopping import StopSignals, Stopped
+
+    with StopSignals() as stop:
+        args = build_parser().parse_args(argv)
+        try:
+            if stop.requested:
+                raise Stopped(stop.first_signal())
+            return int(args.func(args) or 0)
+        except WrenchdError as exc:
+            print(f"wrenchd: error: {exc}", file=sys.stderr)
+            return 2
+        except Stopped as exc:
+            print(f"wrenchd: stopped by {exc}", file=sys.stderr)
+            return 128 + exc.signum
 
 
 if __name__ == "__main__":  # pragma: no cover

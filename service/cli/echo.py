@@ -69,6 +69,8 @@ def _status(session, key: str, timeout: float) -> int:
 def _stream(session, base: str, args: argparse.Namespace) -> int:
     import numpy as np
 
+    from wrenchd.service.runtime.stopping import StopSignals
+
     from wrenchd.adapters.messages import decode_wrench
     from wrenchd.models.errors import DataError
 
@@ -116,11 +118,10 @@ def _stream(session, base: str, args: argparse.Namespace) -> int:
     say(f"wrenchd echo: listening on '{base}/wrenchd/measured_cf' ({args.encoding})")
     deadline = None if args.timeout is None else time.monotonic() + args.timeout
     try:
-        while not done.wait(0.1):
-            if deadline is not None and time.monotonic() > deadline:
-                break
-    except KeyboardInterrupt:
-        pass
+        with StopSignals() as stop:       # SIGINT/SIGTERM end the wait; the count is printed
+            while not done.is_set() and not stop.wait(0.1):
+                if deadline is not None and time.monotonic() > deadline:
+                    break
     finally:
         for sub in subs:
             sub.undeclare()

@@ -45,6 +45,7 @@ from wrenchd.service.pipeline import ArmPipeline, Event, PipelineConfig
 from wrenchd.service.pipeline.validation import accepted_indices
 from wrenchd.service.replay.source import joint_state_messages
 from wrenchd.service.replay.worker import WorkerAdaptation
+from wrenchd.service.runtime import stopping
 
 
 #: Rows per torch step-1 call, in order (the last repeats): small first, so the replay can
@@ -361,6 +362,7 @@ def _run(pipeline: ArmPipeline, session: Session, msgs, config: PipelineConfig, 
         k = b
         ests.clear()
         rows.clear()
+        stopping.check()            # SIGINT/SIGTERM: stop between batches (~0.3 s apart)
 
     process = pipeline.process
     changes = sorted(setup_changes, key=lambda c: c[0])

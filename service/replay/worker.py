@@ -30,6 +30,7 @@ import numpy as np
 from wrenchd.models.series import N_JOINTS
 from wrenchd.models.adaptation import AdaptationConfig, RoundResult
 from wrenchd.models.adaptation.host import SETUP_CALLS
+from wrenchd.service.runtime import stopping
 
 CHUNK_S = 0.25          # the pipeline sends its calls at least every this much sample time [s]
 ARM = "replay"          # the one arm of a replay worker
@@ -194,7 +195,8 @@ class WorkerAdaptation:
             self._conn.send(None)
         except (OSError, ValueError):
             pass
-        self.process.join(timeout=5.0)
+        # on a stop request the round under way is not waited for (its result is not kept)
+        self.process.join(timeout=0.2 if stopping.requested() else 5.0)
         if self.process.is_alive():
             self.process.kill()
             self.process.join(timeout=2.0)

@@ -25,7 +25,9 @@ One adaptation worker process serves all arms (:mod:`wrenchd.service.runtime.wor
 separate process publishing on each arm's ``measured_js`` (``wrenchd robot``), recording its
 ground truth beside the logs.
 
-SIGINT/SIGTERM stop cleanly: subscribers are undeclared first (no callback runs after), the
+SIGINT/SIGTERM stop cleanly, however many arrive (:mod:`~wrenchd.service.runtime.stopping`:
+the handler only sets a flag; a stop that has not finished within ``STOP_BOUND_S`` says what it
+waited for and exits 3): subscribers are undeclared first (no callback runs after), the
 estimation thread finishes what is queued, the worker is asked to stop, the logs are
 finished, the worker and the robots are waited for, the session is closed. Every child ends
 by itself; one that has not within its bound is killed, and a line on stderr says so
@@ -55,6 +57,7 @@ from wrenchd.service.runtime.scheduling import enter_realtime, normal_scheduling
 from wrenchd.service.pipeline.step1 import Step1, load_step1
 from wrenchd.service.runtime.arm import ROS_NODE_ID, ArmRuntime
 from wrenchd.service.runtime.intake import ChannelIntake, channel_fits
+from wrenchd.service.runtime import stopping
 from wrenchd.service.runtime.plumbing import SWITCH_INTERVAL_S, Console, gather
 from wrenchd.service.runtime.worker import WorkerProcess
 
@@ -63,7 +66,8 @@ LINK_CHECK_S = 0.5      # how often the session's routers and peers are counted 
 TICK_S = 0.05           # with the channel intake: how often the estimation thread is woken
                         # when no sample comes (housekeeping, notices, the stop) [s]
 BATCH = 32              # samples of one arm estimated before the next arm's turn
-ROBOT_STOP_S = 10.0     # how long a simulated robot may take to end after SIGINT [s]
+ROBOT_STOP_S = 3.0      # how long a simulated robot may take to end after SIGINT [s]
+STOP_BOUND_S = 8.0      # the whole stop's bound: past it the daemon exits, saying what it waited for
 
 
 def _say_killed(what: str, pid: int | None, when: str) -> None:
@@ -263,16 +267,16 @@ class Daemon:
         gather_s = self.settings.ring.gather_us / 1e6 if len(arms) > 1 else 0.0
         intake = self.intake
         while True:
-            stopping = self.stop.is_set()
+            last_pass = self.stop.is_set()
             if intake is not None:                   # blocks until a sample or a tick
                 taken = intake.take()
                 if taken is None:
                     break
-                stopping = self.stop.is_set()        # the stop's tick: this pass is the last
+                last_pass = self.stop.is_set()        # the stop's tick: this pass is the last
             else:
                 self.wake.wait(0.05)
                 self.wake.clear()
-                if gather_s > 0.0 and not stopping:       # [ring] gather_us
+                if gather_s > 0.0 and not last_pass:       # [ring] gather_us
                     gather([arm.ring for arm in arms], self.wake, gather_s, self.stop)
             for arm in arms:
                 if arm.setup_inbox:               # before the samples that came after them
@@ -302,7 +306,7 @@ class Daemon:
             if now >= self._links_next:
                 self._links_next = now + LINK_CHECK_S
                 self._watch_links()
-            if stopping:
+            if last_pass:
                 break
 
     def _watch_links(self) -> None:
@@ -345,25 +349,23 @@ class Daemon:
                 arm.emit_safe(arrived_ns, payload, msg, est, events, mark)
 
     def run(self, duration_s: float | None = None) -> int:
-        """Start, serve until SIGINT/SIGTERM or ``duration_s``, stop cleanly. Returns 0."""
-        def _stop(signum, _frame):
-            self.stop.set()
-
-        old = {sig: signal.signal(sig, _stop) for sig in (signal.SIGINT, signal.SIGTERM)}
-        try:
-            self.start()
-            deadline = None if duration_s is None else time.monotonic() + duration_s
-            # the channel intake's estimation thread sleeps in zenoh: woken here when idle
-            wait_s = TICK_S if self.intake is not None else 0.2
-            while not self.stop.wait(wait_s):
-                if self.intake is not None:
-                    self.intake.tick()
-                if deadline is not None and time.monotonic() >= deadline:
-                    break
-        finally:
-            self.close()
-            for sig, handler in old.items():
-                signal.signal(sig, handler)
+        """Start, serve until SIGINT/SIGTERM or ``duration_s``, stop cleanly. Returns 0, or
+        :data:`~wrenchd.service.runtime.stopping.EXIT_STOP_HUNG` from a stop that did not
+        finish within its bound (the watchdog's exit, said on stderr)."""
+        with stopping.StopSignals() as signals:
+            try:
+                self.start()
+                deadline = None if duration_s is None else time.monotonic() + duration_s
+                # the channel intake's estimation thread sleeps in zenoh: woken here when idle
+                wait_s = TICK_S if self.intake is not None else 0.2
+                while not signals.wait(wait_s):
+                    if self.intake is not None:
+                        self.intake.tick()
+                    if deadline is not None and time.monotonic() >= deadline:
+                        break
+            finally:
+                signals.bound(STOP_BOUND_S)
+                self.close()
         return 0
 
     def close(self) -> None:
@@ -379,6 +381,7 @@ class Daemon:
             except Exception:  # noqa: BLE001
                 pass
         self.wake.set()
+        stopping.stage("the estimation thread to finish the queued samples")
         if self.intake is not None:
             self.intake.tick()                     # the thread takes what is queued and stops
         if self.thread is not None and self.thread.is_alive():
@@ -387,6 +390,7 @@ class Daemon:
             self.intake.close()
         if self.worker is not None:                # asked now, waited for last: its exit
             self.worker.stop()                     # overlaps the logs' closing
+        stopping.stage("the arms to close")
         for arm in self.arms:
             arm.close()
         if self.live is not None:                  # after the estimation thread stopped
@@ -395,6 +399,7 @@ class Daemon:
         if self.console is not None:
             self.console.close()
             self.console = None
+        stopping.stage("the log writer to finish the files")
         if self.log_writer is not None:            # writes what is queued, finishes the files
             pid = self.log_writer.process.pid if self.log_writer.process else None
             if self.log_writer.close():
@@ -403,9 +408,11 @@ class Daemon:
         else:
             for arm in self.arms:
                 arm.log.close()
+        stopping.stage("the adaptation worker to end")
         if self.worker is not None and self.worker.close():
             _say_killed("the adaptation worker", self.worker.process.pid,
                         "after its stop message")
+        stopping.stage("the simulated robot to end")
         for robot in self.robots:
             try:
                 robot.wait(timeout=ROBOT_STOP_S)
@@ -420,6 +427,7 @@ class Daemon:
             except Exception:  # noqa: BLE001 - closing must go on
                 pass
             self.ros_node = None
+        stopping.stage("the zenoh session to close")
         if self.session is not None:
             self.session.close()
             self.session = None

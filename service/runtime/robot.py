@@ -9,59 +9,29 @@ The scenario is simulated in blocks of up to two minutes; each new block starts 
 trajectory (the next seed), with time continuing. The first block has no contact in its first
 minute: the daemon's contact-free calibration of step 2.
 
-SIGINT/SIGTERM stop it promptly at any point: while it publishes, before the next sample;
-while it simulates a block (under a second of CPU) or waits for its subscriber, the signal
-interrupts that at once. Either way what was published is recorded and the file finished.
+SIGINT/SIGTERM stop it promptly at any point (:mod:`~wrenchd.service.runtime.stopping`: the
+handler only sets a flag): while it publishes, before the next sample; while it waits for its
+subscriber, within 10 ms; while it simulates a block, once the block is simulated (under a
+second of CPU). Either way what was published is recorded and the file finished.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import signal
 import time
-from contextlib import contextmanager
 from pathlib import Path
 
 from wrenchd.adapters.mcap_session_writer import SessionWriter
 from wrenchd.adapters.sim.scenarios import run_scenario
 from wrenchd.adapters.sim.simulator import SimulatorConfig
 from wrenchd.adapters.messages import encode_joint_state, encode_setup_change, stamp_ns_of
-from wrenchd.adapters.zenoh_io import ZenohConfig, open_session, wait_for_subscriber
+from wrenchd.adapters.zenoh_io import ZenohConfig, open_session
+from wrenchd.service.runtime.stopping import StopSignals
 from wrenchd.models.physics.effects.drift import drift_onsets
 
 BLOCK_S = 120.0
 CONTACT_FREE_START_S = 60.0     # the daemon's default calibration_s
 MATCH_TIMEOUT_S = 5.0           # wait this long for a subscriber before the first sample
-
-
-class _Stopped(Exception):
-    """A stop signal that arrived while the robot simulated or waited (see :class:`_Stop`)."""
-
-
-class _Stop:
-    """The stop request of SIGINT/SIGTERM: a flag the publishing loop reads between samples;
-    inside :meth:`interruptible` (a block's simulation, the wait for a subscriber: no sample
-    is being published) the signal raises :class:`_Stopped` instead, ending that at once."""
-
-    def __init__(self) -> None:
-        self.flag = False
-        self._interruptible = False
-
-    def __call__(self, signum, _frame) -> None:
-        self.flag = True
-        if self._interruptible:
-            self._interruptible = False
-            raise _Stopped
-
-    @contextmanager
-    def interruptible(self):
-        self._interruptible = True
-        try:
-            if self.flag:
-                raise _Stopped
-            yield
-        finally:
-            self._interruptible = False
 
 
 def serve_simulated(scenario: str, seed: int, duration_s: float | None, out_dir: Path,
@@ -75,8 +45,14 @@ def serve_simulated(scenario: str, seed: int, duration_s: float | None, out_dir:
     ramp's start; and each new block, which starts the scenario's set-up afresh, when it has
     any) are announced on ``{prefix}/{arm}/setup`` as they happen, as an insufflator or the
     OR's console connected to the daemon would."""
-    stop = _Stop()
-    old = {s: signal.signal(s, stop) for s in (signal.SIGINT, signal.SIGTERM)}
+    with StopSignals() as stop:
+        return _serve(stop, scenario, seed, duration_s, out_dir, arm, rate_hz, zenoh, prefix,
+                      encoding, quiet, announce_setup)
+
+
+def _serve(stop: StopSignals, scenario: str, seed: int, duration_s: float | None,
+           out_dir: Path, arm: str, rate_hz: float, zenoh: ZenohConfig | None, prefix: str,
+           encoding: str, quiet: bool, announce_setup: bool) -> int:
     out_dir.mkdir(parents=True, exist_ok=True)
     path = out_dir / f"{arm}-{scenario}-seed{seed}.mcap"
     key = f"{prefix}/{arm}/measured_js"
@@ -90,18 +66,16 @@ def serve_simulated(scenario: str, seed: int, duration_s: float | None, out_dir:
                 "scenario": {"name": scenario, "seed": seed, "block_s": BLOCK_S}}) as writer:
             t0_wall = None
             offset, block = 0.0, 0
-            while not stop.flag:
+            while not stop.requested:
                 length = BLOCK_S if duration_s is None else min(BLOCK_S, duration_s - offset)
                 if length <= 0:
                     break
                 # the first block leaves the daemon its contact-free calibration minute
-                try:
-                    with stop.interruptible():
-                        sim = run_scenario(
-                            scenario, length, seed + block,
-                            config=SimulatorConfig(publish_rate_hz=rate_hz),
-                            contact_free_s=CONTACT_FREE_START_S if block == 0 else None)
-                except _Stopped:
+                sim = run_scenario(
+                    scenario, length, seed + block,
+                    config=SimulatorConfig(publish_rate_hz=rate_hz),
+                    contact_free_s=CONTACT_FREE_START_S if block == 0 else None)
+                if stop.requested:
                     break
                 js = dataclasses.replace(sim.joint_states, t=sim.joint_states.t + offset)
                 truth = sim.truth
@@ -110,10 +84,11 @@ def serve_simulated(scenario: str, seed: int, duration_s: float | None, out_dir:
                 if changes and block > 0:
                     changes.insert(0, (offset, "new block"))
                 if t0_wall is None:                     # the clock starts with the first sample
-                    try:
-                        with stop.interruptible():
-                            wait_for_subscriber(publisher, MATCH_TIMEOUT_S)
-                    except _Stopped:
+                    deadline = time.monotonic() + MATCH_TIMEOUT_S
+                    while (not publisher.matching_status.matching
+                           and time.monotonic() < deadline and not stop.wait(0.01)):
+                        pass
+                    if stop.requested:
                         break
                     print(f"wrenchd: simulated {arm} ({scenario}) publishing on '{key}' at "
                           f"{rate_hz:g} Hz, recording to {path}", flush=True)
@@ -122,8 +97,8 @@ def serve_simulated(scenario: str, seed: int, duration_s: float | None, out_dir:
                 for i in range(len(js)):
                     delay = t0_wall + js.t[i] - time.monotonic()
                     if delay > 0:
-                        time.sleep(delay)
-                    if stop.flag:
+                        stop.wait(delay)
+                    if stop.requested:
                         break
                     while changes and js.t[i] >= changes[0][0]:
                         t_change, what = changes.pop(0)
@@ -148,8 +123,6 @@ def serve_simulated(scenario: str, seed: int, duration_s: float | None, out_dir:
             setup_pub.undeclare()
     finally:
         session.close()
-        for s, handler in old.items():
-            signal.signal(s, handler)
     print(f"wrenchd robot: stopped after {published} samples; session in {path}", flush=True)
     return 0
 
