@@ -128,6 +128,7 @@ class Daemon:
         loaded: dict[str, Step1] = {}                    # one copy of each distinct model
         for spec in {a.model for a in s.arms}:
             loaded[spec] = load_step1(spec)
+            stopping.check()                    # a stop while starting ends the start
         self.step1 = {a.name: loaded[a.model] for a in s.arms}
         self.models = {name: step1.model for name, step1 in self.step1.items()}
         if s.robot != "simulated":
@@ -153,6 +154,7 @@ class Daemon:
             # was spawned before, and the robots are started after it is left
             realtime(self.realtime_priority)
         try:
+            stopping.check()
             self.session = open_session(s.zenoh)
         except BaseException:
             normal_scheduling()
@@ -209,6 +211,7 @@ class Daemon:
             for thread in (self.log_writer.thread, self.console.thread):
                 realtime_below(self.realtime_priority, thread.native_id)
             normal_scheduling()
+        stopping.check()
         if s.robot == "simulated":
             for arm in self.arms:
                 self.robots.append(subprocess.Popen(_robot_command(s, arm.name)))
