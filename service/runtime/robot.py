@@ -11,13 +11,13 @@ minute: the daemon's contact-free calibration of step 2.
 
 SIGINT/SIGTERM stop it promptly at any point (:mod:`~wrenchd.service.runtime.stopping`: the
 handler only sets a flag): while it publishes, before the next sample; while it waits for its
-subscriber, within 10 ms; while it simulates a block, once the block is simulated (under a
-second of CPU). Either way what was published is recorded and the file finished.
+subscriber or simulates a block (on a thread of its own), within 10 ms. Either way what was published is recorded and the file finished.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import threading
 import time
 from pathlib import Path
 
@@ -32,6 +32,29 @@ from wrenchd.models.physics.effects.drift import drift_onsets
 BLOCK_S = 120.0
 CONTACT_FREE_START_S = 60.0     # the daemon's default calibration_s
 MATCH_TIMEOUT_S = 5.0           # wait this long for a subscriber before the first sample
+
+
+def _unless_stopped(stop: StopSignals, compute):
+    """``compute()``'s result, computed on a thread while this one waits for it or for a stop
+    (then None at once: the computation, under a second of CPU in C code that no flag can
+    reach, is abandoned on its daemon thread)."""
+    result: list = []
+
+    def run() -> None:
+        try:
+            result.append((True, compute()))
+        except BaseException as exc:  # noqa: BLE001 - re-raised on the caller's thread
+            result.append((False, exc))
+
+    thread = threading.Thread(target=run, name="wrenchd-robot-simulate", daemon=True)
+    thread.start()
+    while thread.is_alive():
+        if stop.wait(0.01):
+            return None
+    ok, value = result[0]
+    if not ok:
+        raise value
+    return value
 
 
 def serve_simulated(scenario: str, seed: int, duration_s: float | None, out_dir: Path,
@@ -71,11 +94,11 @@ def _serve(stop: StopSignals, scenario: str, seed: int, duration_s: float | None
                 if length <= 0:
                     break
                 # the first block leaves the daemon its contact-free calibration minute
-                sim = run_scenario(
+                sim = _unless_stopped(stop, lambda length=length, block=block: run_scenario(
                     scenario, length, seed + block,
                     config=SimulatorConfig(publish_rate_hz=rate_hz),
-                    contact_free_s=CONTACT_FREE_START_S if block == 0 else None)
-                if stop.requested:
+                    contact_free_s=CONTACT_FREE_START_S if block == 0 else None))
+                if sim is None:
                     break
                 js = dataclasses.replace(sim.joint_states, t=sim.joint_states.t + offset)
                 truth = sim.truth
