@@ -57,14 +57,18 @@ def open_session(config: ZenohConfig):
                            f"{zenoh_reason(exc)}") from exc
 
 
-def wait_for_subscriber(publisher, timeout_s: float) -> bool:
+def wait_for_subscriber(publisher, timeout_s: float, pause=None) -> bool:
     """Wait until zenoh reports a matching subscriber (the daemon's route is in place), so
-    the first samples are not published into the void; gives up after ``timeout_s``."""
+    the first samples are not published into the void; gives up after ``timeout_s``, or when
+    ``pause(0.01)`` (default: a sleep) between looks returns true (a stop request)."""
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
         if publisher.matching_status.matching:
             return True
-        time.sleep(0.01)
+        if pause is None:
+            time.sleep(0.01)
+        elif pause(0.01):
+            return False
     return False
 
 

@@ -25,7 +25,7 @@ from wrenchd.adapters.mcap_session_writer import SessionWriter
 from wrenchd.adapters.sim.scenarios import run_scenario
 from wrenchd.adapters.sim.simulator import SimulatorConfig
 from wrenchd.adapters.messages import encode_joint_state, encode_setup_change, stamp_ns_of
-from wrenchd.adapters.zenoh_io import ZenohConfig, open_session
+from wrenchd.adapters.zenoh_io import ZenohConfig, open_session, wait_for_subscriber
 from wrenchd.service.runtime.stopping import StopSignals
 from wrenchd.models.physics.effects.drift import drift_onsets
 
@@ -107,10 +107,7 @@ def _serve(stop: StopSignals, scenario: str, seed: int, duration_s: float | None
                 if changes and block > 0:
                     changes.insert(0, (offset, "new block"))
                 if t0_wall is None:                     # the clock starts with the first sample
-                    deadline = time.monotonic() + MATCH_TIMEOUT_S
-                    while (not publisher.matching_status.matching
-                           and time.monotonic() < deadline and not stop.wait(0.01)):
-                        pass
+                    wait_for_subscriber(publisher, MATCH_TIMEOUT_S, pause=stop.wait)
                     if stop.requested:
                         break
                     print(f"wrenchd: simulated {arm} ({scenario}) publishing on '{key}' at "
