@@ -90,12 +90,16 @@ def drift_onsets(session) -> list[tuple[str, float, float | None]]:
     """Set-up changes a session's metadata announces (a :class:`~wrenchd.models.series.Session`):
     (id, start [s], end [s] or None).
 
-    Reads the ``drift`` effects of the simulator's physics model (step: end None; ramp: end).
-    Sessions without them (real data, daemon logs) give an empty list.
+    Reads the ``drift`` effects of the simulator's physics model (step: end None; ramp: end)
+    and the ``setup_changes`` a session built from recordings lists (``{"id", "t_s"}``;
+    :mod:`wrenchd.models.recorded`; end None). Sessions with neither (a single real
+    recording, a daemon log) give an empty list.
     """
     physics = session.metadata.get("physics_model") or {}
     effects = physics.get("effects", []) if isinstance(physics, dict) else []
-    out = []
+    out = [(str(c.get("id", "setup_change")), float(c["t_s"]), None)
+           for c in session.metadata.get("setup_changes") or ()
+           if isinstance(c, dict) and c.get("t_s") is not None]
     for spec in effects:
         if spec.get("name") != "drift" or spec.get("enabled") is False:
             continue
