@@ -112,13 +112,49 @@ def _joint_states(table: _Table, t: np.ndarray, values: np.ndarray,
     return JointStates(t, q, dq, tau)
 
 
+#: Sample rates a WPI recording's rate is snapped to when inferred [Hz].
+WPI_RATES_HZ = (50.0, 100.0, 125.0, 200.0, 250.0, 400.0, 500.0, 1000.0)
+#: The rate of a recording that hardly moves (too little motion to infer one) [Hz].
+WPI_DEFAULT_RATE_HZ = 200.0
+
+
+def wpi_rate(values: np.ndarray, path: object = "") -> float:
+    """The sample rate [Hz] that makes a WPI table's velocity columns the time derivative of
+    its position columns (joints 1-3), snapped to :data:`WPI_RATES_HZ` within 5 %.
+
+    The files carry no time column and not all were recorded at the same rate: the half-speed
+    WPI runs have the full-speed runs' samples per period and half their velocities, i.e.
+    100 Hz. A recording with too little motion gets :data:`WPI_DEFAULT_RATE_HZ`.
+
+    Raises:
+        DataError: the columns imply a rate far from every rate of :data:`WPI_RATES_HZ`.
+    """
+    q, dq = values[:, 0:3], values[:, 7:10]
+    step, mid = np.diff(q, axis=0), 0.5 * (dq[1:] + dq[:-1])
+    power = np.sum(mid ** 2, axis=0)
+    moving = power > 1e-6 * max(len(mid), 1)
+    if len(values) < 3 or not moving.any():
+        return WPI_DEFAULT_RATE_HZ
+    dt = float(np.median(np.sum(step * mid, axis=0)[moving] / power[moving]))
+    if not dt > 0:
+        raise DataError(f"{path}: the velocity columns run against the positions; check the "
+                        "column order")
+    rate = 1.0 / dt
+    best = min(WPI_RATES_HZ, key=lambda r: abs(r / rate - 1.0))
+    if abs(best / rate - 1.0) > 0.05:
+        raise DataError(f"{path}: the velocity columns imply {rate:.1f} Hz, no usual rate; "
+                        "give the rate explicitly")
+    return best
+
+
 def read_wpi_csv(path: str | os.PathLike[str],
-                 rate_hz: float = 200.0) -> tuple[JointStates, np.ndarray]:
+                 rate_hz: float | None = None) -> tuple[JointStates, np.ndarray]:
     """Reads a WPI measured-trajectory CSV (21 columns, no header, no time column).
 
     Args:
         path: the CSV file.
-        rate_hz: sample rate [Hz]; sample k is at t = k / rate_hz.
+        rate_hz: sample rate [Hz]; sample k is at t = k / rate_hz. ``None``: inferred from
+            the velocity columns (:func:`wpi_rate`).
 
     Returns:
         (joint states of joints 1..6, jaw) where jaw is (N, 3): q7 [rad], dq7 [rad/s], tau7 [N m].
@@ -130,10 +166,12 @@ def read_wpi_csv(path: str | os.PathLike[str],
     return _wpi(_Table(path), rate_hz)
 
 
-def _wpi(table: _Table, rate_hz: float) -> tuple[JointStates, np.ndarray]:
-    if not rate_hz > 0:
+def _wpi(table: _Table, rate_hz: float | None) -> tuple[JointStates, np.ndarray]:
+    if rate_hz is not None and not rate_hz > 0:
         raise DataError(f"rate_hz must be > 0, got {rate_hz}")
     values = table.parse(WPI_COLUMNS)
+    if rate_hz is None:
+        rate_hz = wpi_rate(values, table.path)
     t = np.arange(values.shape[0]) / float(rate_hz)
     jaw = values[:, [6, 13, 20]].copy()
     return _joint_states(table, t, values, (0, 7, 14)), jaw
@@ -170,7 +208,7 @@ def write_paper_csv(path: str | os.PathLike[str], js: JointStates, *, header: bo
 
 
 def read_psm_csv(path: str | os.PathLike[str], format: str = "auto", *,
-                 rate_hz: float = 200.0) -> JointStates:
+                 rate_hz: float | None = None) -> JointStates:
     """Reads either layout; ``format="auto"`` picks it by the column count of the first line.
 
     Args:

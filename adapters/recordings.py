@@ -67,13 +67,14 @@ def recording_kind(path: str | os.PathLike[str]) -> str:
 
 
 def read_recording(path: str | os.PathLike[str], *, topic: str = DEFAULT_TOPIC,
-                   csv_format: str = "auto", rate_hz: float = 200.0) -> Recording:
+                   csv_format: str = "auto", rate_hz: float | None = None) -> Recording:
     """The arm's joint states in ``path`` (see the module docstring).
 
     Args:
         topic: the joint-state topic of a ROS 2 bag.
         csv_format: ``auto``, ``wpi`` or ``paper`` (:func:`~wrenchd.adapters.csv_psm.read_psm_csv`).
-        rate_hz: the sample rate of a WPI CSV, which has no time column [Hz].
+        rate_hz: the sample rate of a WPI CSV, which has no time column [Hz]; None:
+            inferred from its velocity columns.
 
     Raises:
         AdapterError, DataError, ConfigError: the recording cannot be read, with the reason.

@@ -66,7 +66,8 @@ def register(sub) -> None:
     p.add_argument("--epochs", type=int, default=200, help="residual network epochs")
     p.add_argument("--seed", type=int, default=0, help="residual network seed")
     p.add_argument("--csv-format", default="auto", choices=["auto", "wpi", "paper"])
-    p.add_argument("--rate", type=float, default=200.0, help="sample rate of a WPI CSV [Hz]")
+    p.add_argument("--rate", type=float, default=None,
+                   help="sample rate of a WPI CSV [Hz] (default: inferred from its velocities)")
     p.add_argument("--json", help="also write the report as JSON here")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=fit)

@@ -18,13 +18,14 @@ def add_measured_options(parser) -> None:
     parser.add_argument("--format", default="auto", choices=FORMATS,
                         help="auto: from what the path is; wpi, paper: a CSV of that layout "
                              "whatever its suffix; mcap: an MCAP file or a rosbag2 directory")
-    parser.add_argument("--rate", type=float, default=200.0,
-                        help="sample rate of a WPI CSV [Hz]")
+    parser.add_argument("--rate", type=float, default=None,
+                        help="sample rate of a WPI CSV [Hz] (default: inferred from its "
+                             "velocity columns)")
     parser.add_argument("--topic", default=DEFAULT_TOPIC,
                         help=f"joint-state topic of a ROS 2 bag (default {DEFAULT_TOPIC})")
 
 
-def read_measured(path: str, fmt: str = "auto", rate_hz: float = 200.0,
+def read_measured(path: str, fmt: str = "auto", rate_hz: float | None = None,
                   topic: str = DEFAULT_TOPIC):
     """Joint states (``JointStates``) of a recording (see :func:`add_measured_options`).
 

@@ -51,7 +51,8 @@ class FileData(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     path: str = Field(description="an .mcap or .csv file")
-    rate_hz: float = Field(default=200.0, gt=0.0, description="sample rate of a WPI CSV [Hz]")
+    rate_hz: float | None = Field(default=None, gt=0.0, description="sample rate of a WPI CSV "
+                                  "[Hz]; None: inferred from its velocity columns")
 
 
 class TrainCommandConfig(BaseModel):

@@ -126,3 +126,26 @@ def test_bad_format_and_empty_file(tmp_path):
     (tmp_path / "empty.csv").write_text("\n\n")
     with pytest.raises(DataError, match="no data rows"):
         read_psm_csv(tmp_path / "empty.csv")
+
+
+def test_the_wpi_rate_comes_from_the_velocity_columns(wpi_data, tmp_path):
+    """The half-speed runs repeat trajectory one with its samples per period and half its
+    velocities: 100 Hz, not the 200 Hz of the others; an explicit rate still wins."""
+    from wrenchd.adapters.csv_psm import read_wpi_csv
+
+    fast, _ = read_wpi_csv(wpi_data / "one_no_weight.csv")
+    slow, _ = read_wpi_csv(wpi_data / "one_slow_105g_parallel.csv")
+    assert fast.rate_hz == pytest.approx(200.0) and slow.rate_hz == pytest.approx(100.0)
+    assert read_wpi_csv(wpi_data / "one_slow_105g_parallel.csv", 200.0)[0].rate_hz == \
+        pytest.approx(200.0)
+    # A table whose velocities match no usual rate is refused, naming the rate.
+    values = np.loadtxt(wpi_data / "one_no_weight.csv", delimiter=",")[:400]
+    values[:, 7:14] *= 1.37
+    path = tmp_path / "odd.csv"
+    np.savetxt(path, values, delimiter=",")
+    with pytest.raises(DataError, match="imply 274"):
+        read_wpi_csv(path)
+    # A still recording has no rate to infer: the default.
+    values[:, 7:14] = 0.0
+    np.savetxt(path, values, delimiter=",")
+    assert read_wpi_csv(path)[0].rate_hz == pytest.approx(200.0)

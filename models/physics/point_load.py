@@ -1,0 +1,136 @@
+"""The joint torques of a point mass fixed to a PSM link, the parallelogram's links included.
+
+A load of mass ``m`` at a point ``p`` fixed in a link's frame moves with the joints; the
+motors hold it with
+
+    tau_j = m (a_p - g) . dp/dq_j
+
+where ``p(q)`` is the point in base axes, ``a_p`` its acceleration and ``g`` gravity in base
+axes (the base frame of :mod:`wrenchd.models.physics.kinematics`, origin at the RCM, and the
+gravity of :class:`~wrenchd.models.physics.dynamics.RigidBodyConfig`, ``-z``). Gravity alone
+(``a_p = 0``) is the static part; with the trajectory's acceleration (a centred,
+offline derivative of ``p(t)``) the point's inertia is included.
+
+Links:
+
+* the serial chain's links, by joint name (``outer_yaw`` ... ``outer_wrist_yaw``): the frames
+  of the modified-DH table, :mod:`~wrenchd.models.physics.kinematics`;
+* the pitch parallelogram, which the serial chain replaces by a virtual pitch joint at the
+  RCM. Its links follow the PSM model of WPI-AIM/dvrk_dynamics_identification (notebook
+  ``main_psm.ipynb``, model ``psm``, the modified-DH rows of its links ``L_21`` ... ``L_25``;
+  lengths ``l_2L1`` 96 mm, ``l_2L2`` 516 mm, ``l_2L3`` 40.09 mm, ``l_2H1`` 144.54 mm):
+
+  ``parallel_back`` (``L_21``): turns with the pitch, parallel to the instrument shaft;
+  ``parallel_upper`` (``L_22``): the long upper link; it keeps its orientation in the yaw
+  link's frame while the pitch moves (it translates). Its x axis runs along the link,
+  parallel to the yaw axis; its y axis points from the link towards the yaw axis, so a point
+  *above* the link's centre line has a negative y;
+  ``parallel_top`` (``L_25``) and ``parallel_bottom`` (``L_24``): the short links pivoted on
+  it, turning with the pitch.
+
+  A point's position along ``parallel_upper`` does not change its torques: the link stays
+  parallel to the yaw axis and every point of it moves alike under the pitch.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from wrenchd.models.errors import DataError
+from wrenchd.models.series import JOINT_NAMES, N_JOINTS
+
+#: WPI model lengths [m] (see the module docstring for the source).
+L2L1, L2L2, L2L3, L2H1 = 0.096, 0.516, 0.04009, 0.14454
+PARALLEL_LINKS = ("parallel_back", "parallel_upper", "parallel_top", "parallel_bottom")
+LINKS = JOINT_NAMES + PARALLEL_LINKS
+#: Step of the central differences that give dp/dq [rad; m].
+_STEP = 1e-6
+
+
+def _mdh(alpha: float, a: float, theta: np.ndarray, d: float = 0.0) -> np.ndarray:
+    """Modified-DH transforms ``RotX(alpha) TransX(a) RotZ(theta) TransZ(d)``, (N, 4, 4)."""
+    theta = np.asarray(theta, np.float64)
+    ca, sa = np.cos(alpha), np.sin(alpha)
+    ct, st = np.cos(theta), np.sin(theta)
+    t = np.zeros(theta.shape + (4, 4))
+    t[..., 0, 0], t[..., 0, 1], t[..., 0, 3] = ct, -st, a
+    t[..., 1, 0], t[..., 1, 1], t[..., 1, 2], t[..., 1, 3] = st * ca, ct * ca, -sa, -sa * d
+    t[..., 2, 0], t[..., 2, 1], t[..., 2, 2], t[..., 2, 3] = st * sa, ct * sa, ca, ca * d
+    t[..., 3, 3] = 1.0
+    return t
+
+
+def _parallel_pose(q: np.ndarray, link: str) -> np.ndarray:
+    """Poses (N, 4, 4) of a parallelogram link for joint positions (N, 6)."""
+    q1, q2 = q[:, 0], q[:, 1]
+    half = np.full_like(q1, np.pi / 2)
+    pose = _mdh(np.pi / 2, 0.0, q1 + np.pi / 2) @ _mdh(-np.pi / 2, 0.0, q2 - np.pi / 2)
+    pose = pose @ _mdh(0.0, L2L3, half)                                      # L_21
+    if link == "parallel_back":
+        return pose
+    pose = pose @ _mdh(0.0, L2H1, np.pi / 2 - q2)                            # L_22
+    if link == "parallel_upper":
+        return pose
+    if link == "parallel_top":
+        return pose @ _mdh(0.0, L2L1, q2 + np.pi)                            # L_25
+    return pose @ _mdh(0.0, L2L2, q2)                                        # L_24
+
+
+def link_poses(q: np.ndarray, link: str) -> np.ndarray:
+    """Poses (N, 4, 4) of ``link`` (one of :data:`LINKS`) in the base frame."""
+    q = np.atleast_2d(np.asarray(q, np.float64))
+    if q.shape[-1] != N_JOINTS:
+        raise DataError(f"joint positions must have shape (N, 6), got {q.shape}")
+    if link in PARALLEL_LINKS:
+        return _parallel_pose(q, link)
+    if link not in JOINT_NAMES:
+        raise DataError(f"unknown link {link!r}; choose from {', '.join(LINKS)}")
+    from wrenchd.models.physics.kinematics import PSMKinematics
+
+    return PSMKinematics().forward(q, f"{link}_link").reshape(-1, 4, 4)
+
+
+def point_positions(q: np.ndarray, link: str, point: np.ndarray) -> np.ndarray:
+    """Base-frame positions (N, 3) of ``point`` (3,) [m], fixed in ``link``'s frame."""
+    point = np.asarray(point, np.float64)
+    if point.shape != (3,) or not np.isfinite(point).all():
+        raise DataError(f"a point is three finite coordinates [m], got {point!r}")
+    return (link_poses(q, link) @ np.append(point, 1.0))[:, :3]
+
+
+def point_jacobian(q: np.ndarray, link: str, point: np.ndarray) -> np.ndarray:
+    """dp/dq (N, 3, 6) of the point, by central differences."""
+    q = np.atleast_2d(np.asarray(q, np.float64))
+    jac = np.empty((len(q), 3, N_JOINTS))
+    for j in range(N_JOINTS):
+        step = np.zeros(N_JOINTS)
+        step[j] = _STEP
+        jac[:, :, j] = (point_positions(q + step, link, point)
+                        - point_positions(q - step, link, point)) / (2 * _STEP)
+    return jac
+
+
+def point_load_torque(q: np.ndarray, link: str, point: np.ndarray, dt: float | None = None,
+                      gravity: np.ndarray | None = None) -> np.ndarray:
+    """Joint torques (N, 6) [N m; N] per kilogram at ``point`` on ``link``.
+
+    Args:
+        q: joint positions (N, 6) of a gap-free series.
+        dt: its sample period [s]; with it the point's inertia is included (acceleration by
+            a centred Savitzky-Golay derivative: offline), without it gravity alone.
+        gravity: base-frame gravity [m/s^2]; default that of the rigid-body model.
+    """
+    from wrenchd.models.physics.dynamics import RigidBodyConfig
+
+    g = np.asarray(RigidBodyConfig().gravity_mps2 if gravity is None else gravity, np.float64)
+    q = np.atleast_2d(np.asarray(q, np.float64))
+    force = np.broadcast_to(-g, (len(q), 3)).copy()
+    if dt is not None:
+        from scipy.signal import savgol_filter
+
+        p = point_positions(q, link, point)
+        window = min(31, len(q) - (1 - len(q) % 2))
+        if window < 5:
+            raise DataError("a point's acceleration needs at least 5 samples")
+        force += savgol_filter(p, window, 3, deriv=2, delta=dt, axis=0)
+    return np.einsum("nk,nkj->nj", force, point_jacobian(q, link, point))
