@@ -9,6 +9,13 @@
         --train ../shared/data/wpi-psm/two.csv:0:18 --test ../shared/data/wpi-psm/two.csv:18:30 \\
         --out /tmp/split.md
 
+    wrenchd real-data --models ls,hybrid --train ../shared/data/wpi-psm/one_no_weight.csv \\
+        --test ../shared/data/wpi-psm/two.csv \\
+        --known-load ../shared/data/wpi-psm/one_105g_parallel.csv:0.105:parallel_upper:0.165,-0.020,0 \\
+        --out /tmp/loads.md
+
+``--known-load FILE:MASS_KG:LINK:X,Y,Z`` (repeatable): a recording with that mass at that point
+of that link's frame (frames: :mod:`wrenchd.models.physics.point_load`).
 ``--train`` may be given more than once; ``file:a:b`` takes the window from a to b seconds.
 ``--lookahead-ms 10,25`` adds the hybrid with an acceleration that reads that far past the
 estimated sample: the accuracy an estimate published that much later would have (offline
@@ -55,6 +62,7 @@ def _command(args: argparse.Namespace) -> str:
         parts += ["--models", ",".join(args.models)]
     parts += [a for t in args.train for a in ("--train", t)] + ["--test", args.test]
     parts += [a for t in args.load for a in ("--load", t)]
+    parts += [a for t in args.known_load for a in ("--known-load", t)]
     if args.lookahead_ms:
         parts += ["--lookahead-ms", ",".join(f"{ms:g}" for ms in args.lookahead_ms)]
     for flag in ("seed", "epochs", "hybrid_epochs", "threads"):
@@ -66,14 +74,14 @@ def _command(args: argparse.Namespace) -> str:
 
 def _cmd(args: argparse.Namespace) -> int:
     import torch
-    from wrenchd.service.studies.real_data import Source, evaluate
+    from wrenchd.service.studies.real_data import KnownLoad, Source, evaluate
     from wrenchd.service.studies.real_data_report import markdown
 
     if args.threads:
         torch.set_num_threads(args.threads)
     r = evaluate([Source.parse(t) for t in args.train], Source.parse(args.test), args.models,
                  args.seed, args.epochs, args.hybrid_epochs, [Source.parse(s) for s in args.load],
-                 args.lookahead_ms)
+                 args.lookahead_ms, [KnownLoad.parse(k) for k in args.known_load])
     try:
         from wrenchd.service.provenance import PROVENANCE_KEY, provenance
     except ImportError:                       # pragma: no cover - older trees
@@ -86,8 +94,16 @@ def _cmd(args: argparse.Namespace) -> int:
                    + ("\n" + Path(args.notes).read_text() if args.notes else ""))
     out.with_suffix(".json").write_text(json.dumps(r, indent=1) + "\n")
     keys = [k for k in r["test_file"] if k.endswith("_rmse")]
-    print(json.dumps({"test_file": {k: [round(v, 4) for v in r["test_file"][k]] for k in keys}},
-                     indent=1))
+    summary: dict = {"test_file": {k: [round(v, 4) for v in r["test_file"][k]] for k in keys}}
+    summary["tip_force_rms_N"] = {k: round(v["rms"], 3)
+                                  for k, v in r["test_file"]["tip_force_N"].items()}
+    if r["test_file"]["tip_force_floor_N"]:
+        summary["tip_force_rms_N"]["floor"] = round(r["test_file"]["tip_force_floor_N"]["rms"], 3)
+    if "known_loads" in r:
+        summary["known_loads"] = [{"file": k["file"], "mass_kg": k["mass_kg"],
+                                   "fitted_mass_kg": round(k["fitted_mass_kg"], 4)}
+                                  for k in r["known_loads"]]
+    print(json.dumps(summary, indent=1))
     return 0
 
 
@@ -101,6 +117,11 @@ def register(subparsers) -> None:
     p.add_argument("--test", required=True, help="WPI CSV to test on, or file:start_s:stop_s")
     p.add_argument("--load", action="append", default=[],
                    help="a recording with added load (repeatable; the first two give a ratio)")
+    p.add_argument("--known-load", action="append", default=[],
+                   metavar="FILE:MASS_KG:LINK:X,Y,Z",
+                   help="a recording with a known mass at a known point of a link's frame "
+                        "(repeatable), e.g. one_205g_parallel.csv:0.205:parallel_upper:"
+                        "0.165,-0.023,0")
     p.add_argument("--models", type=_models, default=MODEL_NAMES,
                    help=f"comma-separated subset of {','.join(MODEL_NAMES)} (default all)")
     p.add_argument("--out", required=True, help="Markdown report (a .json beside it)")

@@ -17,6 +17,17 @@ filter reading that far past the estimated sample (``hybrid_lookahead_<ms>ms``):
 estimate published that much later would gain over the causal one. Such a model does not
 stream; it measures a latency the service does not have.
 
+Newtons at the tip (``tip_force_N``): on free motion the true tip force is zero, so the force
+part of the wrench that each model's external torque maps to (``WrenchMap``, the served map)
+is all error: RMS and 95th percentile of its norm per model, beside ``measured_cf`` (the
+effort alone through ``J^-T``, as the dVRK computes it), ``measured_cf_minus_gravity`` (the
+effort less the gravity torque identified by least squares: velocity and acceleration zero)
+and the repeatability floor through the same map (``tip_force_floor_N``).
+
+Known loads (``known_loads``): a mass at a given point of a given link
+(:mod:`wrenchd.models.physics.point_load`) gives expected external torques; each model's
+estimated external torque is scored against them and the mass refitted with the point held.
+
 Besides the RMSE per joint: the share of test samples inside the hybrid's training coverage
 and the errors there, the test recording's run-to-run repeatability (its trajectories repeat:
 the torque difference at the same phase one period apart, over sqrt 2, is the noise of one
@@ -172,6 +183,165 @@ def load_summary(external: np.ndarray, q: np.ndarray) -> dict[str, Any]:
             "moment_with_offsets_kgm": float(np.linalg.norm(load_moment(external, q, True)))}
 
 
+def _force_stats(force: np.ndarray) -> dict[str, float]:
+    norm = np.linalg.norm(force, axis=1)
+    return {"rms": float(np.sqrt(np.mean(norm ** 2))), "p95": float(np.quantile(norm, 0.95)),
+            "rms_xyz": np.sqrt(np.mean(force ** 2, axis=0)).tolist()}
+
+
+def tip_forces(q: np.ndarray, external: np.ndarray) -> np.ndarray:
+    """Force part (N, 3) [N] of the served map's wrench for external torques (N, 6)."""
+    from wrenchd.models.estimator.wrench import WrenchMap
+
+    return WrenchMap().wrench_batch(q, external)[:, :3]
+
+
+def tip_force_table(trained: Trained, js: JointStates, preds: dict[str, np.ndarray] | None = None
+                    ) -> dict[str, dict[str, float]]:
+    """``{model: {rms, p95, rms_xyz}}`` [N] of the free-motion tip force on one series."""
+    preds = trained.predict(js) if preds is None else preds
+    out = {"measured_cf": _force_stats(tip_forces(js.position, js.effort))}
+    if "ls" in trained.models:
+        zeros = np.zeros_like(js.velocity)
+        gravity = trained.ls.predict(js.position, zeros, zeros)
+        out["measured_cf_minus_gravity"] = _force_stats(tip_forces(js.position,
+                                                                   js.effort - gravity))
+    for key, pred in preds.items():
+        if not key.startswith("_"):
+            out[key] = _force_stats(tip_forces(js.position, js.effort - pred))
+    return out
+
+
+def tip_force_floor(js: JointStates, period_s: float) -> dict[str, float]:
+    """The repeatability floor at the tip: the torque difference one period apart, over
+    sqrt 2, through the served map (at the later sample's pose)."""
+    p = int(round(period_s / float(np.median(np.diff(js.t)))))
+    diff = (js.effort[p:] - js.effort[:-p]) / np.sqrt(2.0)
+    return _force_stats(tip_forces(js.position[p:], diff))
+
+
+@dataclass(frozen=True)
+class KnownLoad:
+    """A recording with ``mass_kg`` added at ``point`` [m] in ``link``'s frame."""
+
+    source: Source
+    mass_kg: float
+    link: str
+    point: tuple[float, float, float]
+
+    @classmethod
+    def parse(cls, spec: str) -> KnownLoad:
+        """``FILE:MASS_KG:LINK:X,Y,Z`` (FILE may carry a window, ``file:a:b``)."""
+        from wrenchd.models.physics.point_load import LINKS
+
+        parts = spec.rsplit(":", 3)
+        if len(parts) != 4:
+            raise ConfigError(f"known load {spec!r}: expected FILE:MASS_KG:LINK:X,Y,Z")
+        path, mass, link, xyz = parts
+        try:
+            mass_kg = float(mass)
+            point = tuple(float(v) for v in xyz.split(","))
+        except ValueError:
+            raise ConfigError(f"known load {spec!r}: the mass [kg] and X,Y,Z [m] must be "
+                              "numbers") from None
+        if not (np.isfinite(mass_kg) and mass_kg > 0) or len(point) != 3 or not np.isfinite(
+                point).all():
+            raise ConfigError(f"known load {spec!r}: expected a positive mass [kg] and three "
+                              "finite coordinates [m]")
+        if link not in LINKS:
+            raise ConfigError(f"known load {spec!r}: unknown link {link!r}; choose from "
+                              f"{', '.join(LINKS)}")
+        return cls(Source.parse(path), mass_kg, link, point)  # type: ignore[arg-type]
+
+
+#: Rotations of gravity about the yaw axis [deg] over which the fitted mass's sensitivity to
+#: the assumed gravity direction is reported.
+GRAVITY_TILTS_DEG = (-5.0, 5.0)
+
+
+def _yaw_axis() -> np.ndarray:
+    from wrenchd.models.physics.point_load import link_poses
+
+    return link_poses(np.zeros((1, 6)), "outer_yaw")[0, :3, 2]
+
+
+def _rotated_gravity(degrees: float) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+
+    from wrenchd.models.physics.dynamics import RigidBodyConfig
+
+    g = np.asarray(RigidBodyConfig().gravity_mps2, np.float64)
+    return Rotation.from_rotvec(np.deg2rad(degrees) * _yaw_axis()).apply(g)
+
+
+def fitted_mass(expected_per_kg: np.ndarray, external: np.ndarray, joints: np.ndarray) -> float:
+    """Least-squares mass [kg] with the point held: ``external ~ m * expected_per_kg`` over
+    ``joints``."""
+    a, b = expected_per_kg[:, joints].ravel(), external[:, joints].ravel()
+    return float(a @ b / (a @ a))
+
+
+def known_load_study(trained: Trained, loads: Sequence[KnownLoad]) -> list[dict[str, Any]]:
+    """Expected against estimated external torques for each known load (JSON-ready)."""
+    from wrenchd.models.physics.point_load import point_load_torque
+
+    out = []
+    for load in loads:
+        js = load.source.load()
+        rate_hz = 1.0 / float(np.median(np.diff(js.t)))
+        if hasattr(trained, "hybrid"):
+            js = at_rate(js, trained.hybrid.acceleration.dt_s)
+        dt = float(np.median(np.diff(js.t)))
+        point = np.asarray(load.point)
+        per_kg = point_load_torque(js.position, load.link, point, dt)
+        static_per_kg = point_load_torque(js.position, load.link, point)
+        # The joints the load can act on: those whose torque it changes.
+        joints = np.flatnonzero(np.sqrt(np.mean(per_kg ** 2, axis=0)) > 1e-9)
+        expected = load.mass_kg * per_kg
+        rec: dict[str, Any] = {
+            "file": load.source.label, "mass_kg": load.mass_kg, "link": load.link,
+            "rate_hz": rate_hz, "scored_at_hz": 1.0 / dt,
+            "point_m": list(load.point), "joints": (joints + 1).tolist(),
+            "gravity_mps2": list(_rotated_gravity(0.0)),
+            "expected_rms": np.sqrt(np.mean(expected ** 2, axis=0)).tolist(), "models": {}}
+        preds = trained.predict(js)
+        for key, pred in preds.items():
+            if key.startswith("_"):
+                continue
+            external = js.effort - pred
+            m = fitted_mass(per_kg, external, joints)
+            force = tip_forces(js.position, external - expected)
+            rec["models"][key] = {
+                "fitted_mass_kg": m,
+                "fitted_mass_static_kg": fitted_mass(static_per_kg, external, joints),
+                "fitted_mass_gravity_rotated_kg": {
+                    f"{deg:+g}": fitted_mass(point_load_torque(
+                        js.position, load.link, point, dt, _rotated_gravity(deg)),
+                        external, joints) for deg in GRAVITY_TILTS_DEG},
+                "torque_rmse": rmse(external, expected),
+                "force_error_N": _force_stats(force)}
+        served = rec["models"].get("hybrid") or next(iter(rec["models"].values()))
+        rec["served"] = "hybrid" if "hybrid" in rec["models"] else next(iter(rec["models"]))
+        rec["fitted_mass_kg"] = served["fitted_mass_kg"]
+        rec["mass_error"] = served["fitted_mass_kg"] / load.mass_kg - 1.0
+        rec["torque_rmse"] = served["torque_rmse"]
+        rec["force_error_N"] = served["force_error_N"]
+        out.append(rec)
+    return out
+
+
+def at_rate(js: JointStates, dt: float) -> JointStates:
+    """``js`` on a grid of period ``dt`` [s] (linear interpolation), or ``js`` itself where its
+    period is already ``dt``: a causal filter's taps hold for the rate it was fitted at."""
+    own = float(np.median(np.diff(js.t)))
+    if abs(own / dt - 1.0) < 0.01:
+        return js
+    t = np.arange(js.t[0], js.t[-1] + 1e-12, dt)
+    cols = [np.stack([np.interp(t, js.t, a[:, j]) for j in range(a.shape[1])], axis=1)
+            for a in (js.position, js.velocity, js.effort)]
+    return JointStates(t, *cols)
+
+
 def grams(path: str) -> float | None:
     m = re.search(r"(\d+)g", Path(path).name)
     return float(m.group(1)) if m else None
@@ -296,9 +466,11 @@ def scores(trained: Trained, series: Sequence[JointStates]) -> dict[str, Any]:
 
 def evaluate(train: Sequence[Source], test: Source, models: Sequence[str] = MODELS,
              seed: int = 0, lstm_epochs: int | None = None, hybrid_epochs: int | None = None,
-             loads: Sequence[Source] = (), lookahead_ms: Sequence[float] = ()) -> dict[str, Any]:
-    """Train the chosen models on ``train``, score them on ``train`` and ``test``, and
-    estimate the external torque on each of ``loads``; ``lookahead_ms``: the hybrid again
+             loads: Sequence[Source] = (), lookahead_ms: Sequence[float] = (),
+             known_loads: Sequence[KnownLoad] = ()) -> dict[str, Any]:
+    """Train the chosen models on ``train``, score them on ``train`` and ``test`` (joint
+    torques and the free-motion tip force), estimate the external torque on each of
+    ``loads`` and score it against each of ``known_loads``; ``lookahead_ms``: the hybrid again
     with an acceleration reading that far ahead (offline). Returns a JSON-ready dict."""
     unknown = set(models) - set(MODELS)
     if unknown or not models:
@@ -313,7 +485,18 @@ def evaluate(train: Sequence[Source], test: Source, models: Sequence[str] = MODE
                          "models": list(models), "seed": seed, **trained.meta}
     r["train_file"] = scores(trained, train_series)
     r["test_file"] = scores(trained, [test_series])
-    r["test_file"]["repeatability"] = repeatability(test_series)
+    rep = repeatability(test_series)
+    r["test_file"]["repeatability"] = rep
+    r["test_file"]["tip_force_N"] = tip_force_table(trained, test_series)
+    r["test_file"]["tip_force_floor_N"] = (tip_force_floor(test_series, rep["period_s"])
+                                           if rep else None)
+    if len(train_series) == 1:
+        rep = repeatability(train_series[0])
+        r["train_file"]["tip_force_N"] = tip_force_table(trained, train_series[0])
+        r["train_file"]["tip_force_floor_N"] = (tip_force_floor(train_series[0], rep["period_s"])
+                                                if rep else None)
+    if known_loads:
+        r["known_loads"] = known_load_study(trained, known_loads)
     if loads:
         r["loads"] = load_study(trained, train, train_series, loads)
     return r

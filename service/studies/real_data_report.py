@@ -96,13 +96,74 @@ def loads_section(loads: dict[str, Any]) -> list[str]:
     return lines
 
 
+#: Tip-force rows in table order: result key, title.
+FORCE_ROWS = (("measured_cf", "`measured_cf`: effort through J^-T (the dVRK's own)"),
+              ("measured_cf_minus_gravity", "`measured_cf` less the identified gravity"),
+              *COLUMNS)
+
+
+def tip_force_section(r: dict[str, Any]) -> list[str]:
+    """The free-motion tip force of the test (and a single training) recording, in newtons."""
+    files = [("test_file", f"test `{Path(r['test']).name}`")]
+    if "tip_force_N" in r.get("train_file", {}):
+        files.append(("train_file", f"training `{Path(r['train'][0]).name}`"))
+    rows = list(FORCE_ROWS) + [(lookahead_key(ms), f"hybrid, {ms:g} ms ahead (offline)")
+                               for ms in sorted(r.get("lookahead_ms", ()))]
+    lines = ["## Newtons at the tip: free motion, where every newton is error\n",
+             ("The recordings are free motion: the true tip force is zero. Force part of the "
+              "wrench each model's external torque (effort minus prediction) maps to through "
+              "the served map (`WrenchMap`, base axes), norm per sample: RMS and 95th "
+              "percentile [N]. The floor is the effort one period apart over sqrt 2 through "
+              "the same map.\n"),
+             "| model | " + " | ".join(f"{t} RMS | p95" for _, t in files) + " |",
+             "|" + " --- |" * (1 + 2 * len(files))]
+    for key, title in rows:
+        if all(key in r[f]["tip_force_N"] for f, _ in files):
+            lines.append(f"| {title} | " + " | ".join(
+                f"{r[f]['tip_force_N'][key]['rms']:.2f} | {r[f]['tip_force_N'][key]['p95']:.2f}"
+                for f, _ in files) + " |")
+    floors = [r[f].get("tip_force_floor_N") for f, _ in files]
+    if all(floors):
+        lines.append("| repeatability floor | " + " | ".join(
+            f"{fl['rms']:.2f} | {fl['p95']:.2f}" for fl in floors) + " |")
+    return lines + [""]
+
+
+def known_loads_section(loads: list[dict[str, Any]]) -> list[str]:
+    """Expected against estimated external torques of each known load."""
+    models = [k for k, _ in COLUMNS if k in loads[0]["models"]]
+    lines = ["## Known loads: a mass at a given point, against the estimated external torque\n",
+             ("Expected external torques: the load's gravity and inertia at the given point "
+              "(`wrenchd.models.physics.point_load`, gravity along the base frame's -z as in "
+              "the rigid-body model); fitted mass: least squares of the estimated external "
+              "torque on the expected one per kilogram, over the joints the load acts on, the "
+              "point held. A recording at another rate than the hybrid's is interpolated to "
+              "it. `+-5 deg`: the fitted mass with gravity turned 5 degrees about the yaw axis "
+              "(how much the assumed gravity direction matters).\n"),
+             "| recording | rate | mass | link, point [m] | model | fitted mass | -5 deg | +5 deg "
+             "| torque RMSE yaw, pitch | force error RMS [N] |", "|" + " --- |" * 10]
+    for rec in loads:
+        for key in models:
+            m = rec["models"][key]
+            rot = m["fitted_mass_gravity_rotated_kg"]
+            lines.append(
+                f"| {Path(rec['file']).name} | {rec['rate_hz']:.0f} Hz | "
+                f"{rec['mass_kg'] * 1000:.0f} g | {rec['link']} "
+                f"({', '.join(f'{v:g}' for v in rec['point_m'])}) | {key} | "
+                f"{m['fitted_mass_kg'] * 1000:.1f} g ({100 * (m['fitted_mass_kg'] / rec['mass_kg'] - 1):+.0f} %) | "
+                f"{rot['-5'] * 1000:.1f} g | {rot['+5'] * 1000:.1f} g | "
+                f"{m['torque_rmse'][0]:.3f}, {m['torque_rmse'][1]:.3f} | "
+                f"{m['force_error_N']['rms']:.2f} |")
+    return lines + [""]
+
+
 def markdown(r: dict[str, Any], command: str) -> str:
     """The report: setup, test table, coverage, repeatability, training table, loads."""
     train = ", ".join(f"`{Path(s).name}`" for s in r["train"])
     lines = [("# Step 1 on real dVRK data: paper LSTM, least squares and a physics-informed "
               "hybrid\n"), f"Command: `{command}`\n",
              (f"Trained on {train}, tested on `{Path(r['test']).name}` (WPI PSM free-motion "
-             "recordings at 200 Hz, jaw dropped; `file:a:b` is the window from a to b seconds). "
+             "recordings, jaw dropped; `file:a:b` is the window from a to b seconds). "
               f"Models: {', '.join(r['models'])}.")]
     if "lstm_train_seconds" in r:
         rc = r["recipe"]
@@ -126,6 +187,10 @@ def markdown(r: dict[str, Any], command: str) -> str:
                      "acceleration filter that reads N ms past the estimated sample; it cannot "
                      "stream: it shows what publishing each estimate N ms late would buy.")
     lines.append("")
+    if "tip_force_N" in r["test_file"]:
+        lines += tip_force_section(r)
+    if "known_loads" in r:
+        lines += known_loads_section(r["known_loads"])
     rep = r["test_file"].get("repeatability")
     lines += ["## Test: torque RMSE per joint\n"]
     ahead = r.get("lookahead_ms", ())

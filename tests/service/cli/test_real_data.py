@@ -71,3 +71,52 @@ def test_repeatability_of_a_periodic_recording():
     np.testing.assert_allclose(rep["floor_rmse"], 0.01, rtol=0.1)
     noise = JointStates(t, rng.normal(size=q.shape), np.zeros_like(q), tau)
     assert repeatability(noise) is None
+
+
+def test_newtons_at_the_tip_and_known_loads(wpi_data, tmp_path):
+    """Least squares on one_no_weight: the free-motion tip force of two.csv in newtons beside
+    the dVRK's own J^-T effort, and the parallelogram loads' masses with their point held."""
+    out = tmp_path / "loads.md"
+    d = str(wpi_data)
+    loads = [f"{d}/one_105g_parallel.csv:0.105:parallel_upper:0.165,-0.020,0",
+             f"{d}/one_205g_parallel.csv:0.205:parallel_upper:0.165,-0.023,0",
+             f"{d}/one_slow_205g_parallel.csv:0.205:parallel_upper:0.165,-0.023,0"]
+    cmd = [sys.executable, "-m", "wrenchd", "real-data", "--models", "ls", "--threads", "1",
+           "--train", f"{d}/one_no_weight.csv", "--test", f"{d}/two.csv", "--out", str(out)]
+    cmd += [a for spec in loads for a in ("--known-load", spec)]
+    done = subprocess.run(cmd, check=False, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    r = json.loads(out.with_suffix(".json").read_text())
+    tip = r["test_file"]["tip_force_N"]
+    # Least squares is deterministic: measured 1.56 N on two.csv, the raw effort 9.6 N, the
+    # floor 0.34 N; tolerances cover BLAS differences, not a different model.
+    assert tip["ls"]["rms"] == pytest.approx(1.563, rel=0.02)
+    assert tip["measured_cf"]["rms"] == pytest.approx(9.59, rel=0.01)
+    assert r["test_file"]["tip_force_floor_N"]["rms"] == pytest.approx(0.336, rel=0.02)
+    assert tip["ls"]["p95"] > tip["ls"]["rms"] and set(tip) >= {"ls_plain",
+                                                                "measured_cf_minus_gravity"}
+    assert r["train_file"]["tip_force_N"]["ls"]["rms"] < tip["ls"]["rms"]
+    fast105, fast205, slow205 = r["known_loads"]
+    assert fast105["joints"] == [1, 2] and fast105["rate_hz"] == pytest.approx(200.0)
+    # The half-speed run is a 100 Hz recording (its velocity column says so).
+    assert slow205["rate_hz"] == pytest.approx(100.0)
+    for rec, low, high in ((fast105, 0.085, 0.105), (fast205, 0.195, 0.225),
+                           (slow205, 0.170, 0.200)):
+        assert low < rec["fitted_mass_kg"] < high, (rec["file"], rec["fitted_mass_kg"])
+        assert rec["force_error_N"]["rms"] < 1.5
+    text = out.read_text()
+    assert "Newtons at the tip" in text and "Known loads" in text
+
+
+def test_known_load_specs_are_validated():
+    from wrenchd.service.studies.real_data import KnownLoad
+
+    load = KnownLoad.parse("a/one.csv:0:10:0.105:parallel_upper:0.165,-0.02,0")
+    assert load.source == Source("a/one.csv", 0.0, 10.0) and load.point == (0.165, -0.02, 0.0)
+    for bad, match in (("one.csv:0.1:parallel_upper", "expected FILE"),
+                       ("one.csv:-1:parallel_upper:0,0,0", "positive mass"),
+                       ("one.csv:0.1:forearm:0,0,0", "unknown link"),
+                       ("one.csv:0.1:outer_yaw:0,0", "positive mass"),
+                       ("one.csv:heavy:outer_yaw:0,0,0", "must be numbers")):
+        with pytest.raises(ConfigError, match=match):
+            KnownLoad.parse(bad)
