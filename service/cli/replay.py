@@ -1,7 +1,8 @@
 """``wrenchd replay``: a session through the daemon's pipeline, with metrics.
 
-SESSION is an ``.mcap`` (simulated or a daemon log), ``sim:SCENARIO:DURATION[:SEED]`` or a
-real ``.csv`` (see :mod:`wrenchd.service.replay.source`); ``--config`` and ``--seed`` as in
+SESSION is an ``.mcap`` (simulated or a daemon log), a real ``.csv``, a rosbag2 directory,
+``sim:SCENARIO:DURATION[:SEED]``, ``concat:PATH[*N][,PATH[*N]...]`` or ``inject:SEED:SESSION``
+(see :mod:`wrenchd.service.replay.source`); ``--config`` and ``--seed`` as in
 :mod:`wrenchd.service.cli.pipeline_config`. ``--report`` writes ``metrics.json`` (with its
 provenance) and ``metrics.md``.
 """
@@ -52,13 +53,16 @@ def replay_session(args: argparse.Namespace) -> int:
 def register(sub) -> None:
     p = sub.add_parser("replay", parents=[common_options()],
                        help="replay a session through the daemon's pipeline, with metrics")
-    p.add_argument("session", help="file.mcap, file.csv or sim:SCENARIO:DURATION[:SEED]")
+    p.add_argument("session", help="file.mcap, file.csv, a rosbag2 directory, "
+                                   "sim:SCENARIO:DURATION[:SEED], concat:PATH[*N][,PATH[*N]...] "
+                                   "or inject:SEED:SESSION")
     p.add_argument("--policy", default="gated", choices=POLICY_CHOICES,
                    metavar="NAME", help="adaptation policy: %(choices)s (default %(default)s)")
     p.add_argument("--announce", action="store_true",
                    help="announce the session's set-up changes to the pipeline as the "
-                        "daemon's setup key would: a scenario's (its drift steps) or, for "
-                        "a daemon log, the notices it logged")
+                        "daemon's setup key would: a scenario's (its drift steps), a concat: "
+                        "session's (each change of recording) or, for a daemon log, the "
+                        "notices it logged")
     p.add_argument("-o", "--output", help="write estimates and events to this MCAP")
     p.add_argument("--report", help="directory for metrics.json and metrics.md")
     p.add_argument("--streaming", action="store_true",

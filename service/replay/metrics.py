@@ -14,6 +14,8 @@ norm), torques ``|T_est - T_ref|`` [N m]. References: the simulator's true tip w
   zero whatever the label says) and the samples of weaker episodes.
 * ``contamination``: offered training samples that were truly in contact (all, and those
   offered after the calibration, which trains on every sample by design).
+* ``setup_changes`` (free-motion tip force around each set-up change) and ``contacts_found``
+  (contact episodes over 2 N found or missed): :mod:`wrenchd.service.replay.events_scored`.
 * drift: for each set-up change the session announces (a step, or a ramp's start), the free-
   motion force error before (30 s) and after it, and the time until the 5 s rolling free-
   motion error is back within 10 % of the pre-change level (None: never).
@@ -28,6 +30,7 @@ import numpy as np
 from wrenchd.models.series import Session
 from wrenchd.service.replay.loop import ReplayResult
 from wrenchd.models.physics.effects.drift import drift_onsets
+from wrenchd.service.replay.events_scored import contact_detection, setup_change_levels
 
 PRE_S, ROLL_S, RECOVER_FRACTION = 30.0, 5.0, 0.10
 #: ``gate_episodes``: contact episodes count above this peak true force [N]; this long
@@ -230,6 +233,7 @@ def replay_metrics(r: ReplayResult, session: Session) -> dict[str, Any]:
         "events": {k: sum(1 for e in r.events if e.kind == k)
                    for k in sorted({e.kind for e in r.events})},
     }
+    m["setup_changes"] = setup_change_levels(r.t, r.wrench, r.sample, session)
     truth = session.truth
     if truth is None:
         m["estimated_force_mean_N"] = _mean(np.linalg.norm(r.wrench[:, :3], axis=1))
@@ -264,6 +268,9 @@ def replay_metrics(r: ReplayResult, session: Session) -> dict[str, Any]:
     else:
         m["contamination"] = {"offered": 0, "in_contact": 0, "fraction": None,
                               "in_contact_after_calibration": 0}
+    m["contacts_found"] = contact_detection(
+        r.t, ~r.free, np.linalg.norm(truth.external_wrench[r.sample, :3], axis=1), contact,
+        t0 + calib)
     ef = force_error_n(r, truth)
     m["drifts"] = [{"id": name, "end_s": end, **_recovery(r.t, ef, ~contact, start)}
                    for name, start, end in drift_onsets(session)]
@@ -322,9 +329,16 @@ def metrics_markdown(m: dict[str, Any]) -> str:
                          f"{_f(d['free_force_error_before_N'])} N before, "
                          f"{_f(d['free_force_error_after_N'])} N after; recovery "
                          f"{_f(d['recovery_s'])} s")
+        cf = m["contacts_found"]
+        lines.append(f"- contact episodes peaking over {cf['over_N']:g} N after the calibration: "
+                     f"{cf['found']} of {cf['episodes']} found")
     else:
         lines.append(f"- no ground truth; mean estimated force "
                      f"{_f(m.get('estimated_force_mean_N'))} N")
+    for c in m.get("setup_changes", []):
+        lines.append(f"- set-up change `{c['id']}` at {c['at_s']:.1f} s: free-motion tip force "
+                     f"RMS {_f(c['before_N'])} N over the 30 s before, {_f(c['after_N'])} N "
+                     f"from 60 s after (ratio {_f(c['ratio'])})")
     lines += ["", f"Events: {m['events']}", ""]
     return "\n".join(lines)
 

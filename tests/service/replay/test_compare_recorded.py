@@ -1,0 +1,101 @@
+"""``wrenchd compare --model BUNDLE`` on a concatenation of real recordings: each row gains
+``setup_changes[]`` (free-motion tip force before and after the change), the change is
+announced to the pipeline only with ``--announce``, and an injected session's contacts are
+scored."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from wrenchd.models.series import Session
+from wrenchd.service.replay.events_scored import contact_detection, setup_change_levels
+
+CLI = [sys.executable, "-m", "wrenchd"]
+
+
+def _run(*args, timeout: float = 240.0) -> subprocess.CompletedProcess:
+    return subprocess.run([*CLI, *args], capture_output=True, text=True, timeout=timeout)
+
+
+@pytest.fixture(scope="module")
+def bundle(wpi_data, tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("fit") / "bundle"
+    done = _run("fit", str(wpi_data / "one_no_weight.csv"), "-o", str(out), "--quiet")
+    assert done.returncode == 0, done.stderr
+    return out
+
+
+def test_compare_with_a_bundle_measures_the_set_up_change(bundle, wpi_data, tmp_path):
+    a, b = wpi_data / "one_no_weight.csv", wpi_data / "one_205g_parallel.csv"
+    spec = f"concat:{a},{b}*3"                    # the change at 30 s, 120 s in all
+    out = tmp_path / "cmp"
+    done = _run("compare", "--policies", "gated,frozen", "--model", str(bundle), "--sessions",
+                spec, "--out", str(out))
+    assert done.returncode == 0, done.stderr
+    rows = json.loads((out / "compare.json").read_text())
+    assert [r["policy"] for r in rows] == ["gated", "frozen"]
+    for r in rows:
+        assert r["session"] == spec and r["counters"]["errors"] == 0
+        (c,) = r["setup_changes"]
+        assert c["at_s"] == pytest.approx(5999 * 0.005)
+        assert c["id"] == "recording:one_205g_parallel.csv"
+        # every sample is free motion: 30 s before, the 30 s from 90 s on (to the end)
+        assert c["before_samples"] == 5999 and c["after_samples"] >= 5990
+        # tip force where the truth is zero: tenths of a newton to a few newtons, not 0
+        assert 0.05 < c["before_N"] < 5.0 and 0.05 < c["after_N"] < 5.0, c
+        assert c["ratio"] == pytest.approx(c["after_N"] / c["before_N"])
+        assert r["setup_changes"] and not r["announced"]
+        assert r["counters"]["setup_changes"] == 0                       # not announced
+    # the same model before the change: the frozen policy never adapts
+    frozen = rows[1]
+    assert frozen["final_model_version"] == 0
+    assert "set-up change" in (out / "compare.md").read_text()
+    assert (out / f"concat_one_no_weight.csv_one_205g_parallel.csv_3.png").is_file()
+
+
+def test_compare_announces_the_change_only_when_asked(bundle, wpi_data, tmp_path):
+    a, b = wpi_data / "one_no_weight.csv", wpi_data / "two.csv"
+    out = tmp_path / "cmp"
+    done = _run("compare", "--policies", "frozen", "--model", str(bundle), "--announce",
+                "--sessions", f"concat:{a},{b}", "--out", str(out))
+    assert done.returncode == 0, done.stderr
+    (row,) = json.loads((out / "compare.json").read_text())
+    assert row["announced"] and row["counters"]["setup_changes"] == 1
+    c = row["setup_changes"][0]
+    assert c["after_N"] is None and c["ratio"] is None       # the session ends before 90 s
+
+
+def test_setup_change_windows_and_contacts_found_on_known_arrays():
+    """A change at 100 s; the published force is 1 N before it, 3 N from 160 s on, 50 N in
+    contact (left out); two episodes over 2 N, one flagged."""
+    from wrenchd.models.series import GroundTruth, JointStates
+
+    t = np.arange(0, 200.0, 0.01)
+    n = len(t)
+    contact = ((t >= 120) & (t < 122)) | ((t >= 170) & (t < 171)) | ((t >= 175) & (t < 176))
+    force = np.where(t < 100, 1.0, np.where(t >= 160, 3.0, 2.0))
+    force[contact] = 50.0
+    wrench = np.zeros((n, 6))
+    wrench[:, 1] = force
+    zeros = np.zeros((n, 6))
+    true_wrench = zeros.copy()
+    true_wrench[contact, 0] = 4.0
+    true_wrench[(t >= 175) & (t < 176), 0] = 1.5                           # a weak one
+    truth = GroundTruth(zeros, zeros, zeros, zeros, zeros, true_wrench, contact)
+    session = Session(JointStates(t, zeros, zeros, zeros), truth,
+                      {"setup_changes": [{"id": "x", "t_s": 100.0}]})
+    (c,) = setup_change_levels(t, wrench, np.arange(n), session)
+    assert c["before_N"] == pytest.approx(1.0) and c["after_N"] == pytest.approx(3.0)
+    assert c["ratio"] == pytest.approx(3.0)
+    assert c["after_samples"] == 3000 - 200                 # 160-190 s less two contacts
+    flagged = (t >= 121) & (t < 121.5)
+    found = contact_detection(t, flagged, np.linalg.norm(true_wrench[:, :3], axis=1),
+                              contact, judged_from_s=60.0)
+    assert (found["episodes"], found["found"], found["missed"]) == (2, 1, 1)
+    assert found["missed_episodes"][0]["start_s"] == pytest.approx(170.0)
