@@ -6,6 +6,7 @@ Example::
 
     wrenchd recovery --seeds 3,4,5 --set '{}' --set '{"adaptation": {"refit_shrink": 0}}'
     wrenchd recovery --seeds 3,4 --settled --bins 20 --duration 600 --json recovery.json
+    wrenchd recovery --model BUNDLE --session 'concat:one_no_weight.csv*6,one_205g_parallel.csv*6'
 """
 
 from __future__ import annotations
@@ -29,10 +30,11 @@ def recovery(args: argparse.Namespace) -> int:
     if not seeds:
         raise ConfigError("--seeds names no seed")
     result = run_recovery(seeds, args.set, args.duration, args.model, settled=args.settled,
-                          bin_s=args.bins, announce=args.announce)
+                          bin_s=args.bins, announce=args.announce,
+                          sessions_given=args.session or None)
     for s in result["summary"]:
         line = (f"{s['set']}: mean ratio {s['mean_ratio']:.3f}, {s['within_target']} of "
-                f"{s['seeds']} seeds within {TARGET_RATIO}, worst {s['worst_ratio']:.3f}, "
+                f"{s['seeds']} {'sessions' if args.session else 'seeds'} within {TARGET_RATIO}, worst {s['worst_ratio']:.3f}, "
                 f"contact samples offered {s['contact_offered']}")
         if args.settled:
             line += f"; excess over settled: mean {s['mean_excess']:.3f}, worst " \
@@ -60,5 +62,9 @@ def register(sub) -> None:
     p.add_argument("--announce", action="store_true",
                    help="announce the pressure step to the pipeline, as the daemon's setup "
                         "key would (the adapter then carries its buffer over)")
+    p.add_argument("--session", action="append", default=[], metavar="SESSION",
+                   help="measure on this session instead of the simulated seeds (repeatable; "
+                        "any form replay takes, e.g. concat:a.csv*6,b.csv*6), around its "
+                        "first set-up change")
     p.add_argument("--json", help="also write the rows and summary to this file")
     p.set_defaults(func=recovery)

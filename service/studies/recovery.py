@@ -20,6 +20,10 @@ With ``--bins SECONDS`` each row also gives the free-motion error per bin from t
 the end (``post_bins_n``; with ``--settled`` the settled replay's, ``settled_bins_n``, and
 their ratio, ``excess_bins``): how the gap evolves, where the post window is one point of it.
 
+With ``--session SESSION`` (repeatable; any form ``wrenchd replay`` takes, e.g. a ``concat:``
+of real recordings) the measure runs on those sessions instead of the simulated seeds, around
+each one's first set-up change (``--settled`` does not apply).
+
 With ``--announce`` the step is announced to the pipeline at its time, as the daemon's
 ``setup`` key would be told by the insufflator or the OR console
 (:meth:`wrenchd.service.pipeline.arm.ArmPipeline.setup_change`): adaptation gets eager and
@@ -77,14 +81,42 @@ def _rounded(values) -> list[float | None]:
     return [None if v != v else round(float(v), 4) for v in values]
 
 
+def _given_sessions(specs: list[str]) -> tuple[dict, dict]:
+    """The sessions named by ``specs`` and the time of each one's first set-up change [s].
+
+    Raises:
+        ConfigError: a session without truth or without a set-up change.
+    """
+    from wrenchd.models.physics.effects.drift import drift_onsets
+    from wrenchd.service.replay.source import load_session
+
+    sessions, changes = {}, {}
+    for spec in specs:
+        session = load_session(spec)
+        if session.truth is None:
+            raise ConfigError(f"--session {spec!r} has no truth to measure against (a "
+                              "concat:, inject: or sim: session has)")
+        onsets = drift_onsets(session)
+        if not onsets:
+            raise ConfigError(f"--session {spec!r} records no set-up change to recover from")
+        sessions[spec], changes[spec] = session, onsets[0][1]
+    return sessions, changes
+
+
 def run_recovery(seeds: list[int], settings: list[str], duration_s: float = 220.0,
                  model: str = "seal", progress=print, settled: bool = False,
-                 bin_s: float | None = None, announce: bool = False) -> dict:
-    """The measure for every seed and setting (see the module docstring)."""
+                 bin_s: float | None = None, announce: bool = False,
+                 sessions_given: list[str] | None = None) -> dict:
+    """The measure for every seed and setting (see the module docstring); with
+    ``sessions_given`` (session specs, :mod:`wrenchd.service.replay.source`) for each of those
+    instead of the simulated seeds, around each one's first set-up change."""
     if bin_s is not None and not 0 < bin_s < float("inf"):
         raise ConfigError(f"--bins must be a positive number of seconds, got {bin_s:g}")
+    if sessions_given and settled:
+        raise ConfigError("--settled needs the simulated scenario; it does not apply to "
+                          "--session")
     after_s = (1.0 - CHANGE_FRACTION) * duration_s
-    if not after_s > SETTLE_S:                    # refused before minutes of simulation
+    if not sessions_given and not after_s > SETTLE_S:     # refused before minutes of simulation
         raise ConfigError(f"--duration {duration_s:g}: the change comes at "
                           f"{CHANGE_FRACTION:.0%} of it, which leaves {after_s:g} s after it; "
                           f"the measure needs more than {SETTLE_S:g} s of free motion after "
@@ -101,26 +133,32 @@ def run_recovery(seeds: list[int], settings: list[str], duration_s: float = 220.
     one_compute_thread()
     configs = pipeline_settings(settings)
     free_space = load_free_space(model)
-    change_s = CHANGE_FRACTION * duration_s
-    sessions = {seed: run_scenario(SCENARIO, duration_s, seed) for seed in seeds}
+    if sessions_given:
+        sessions, change_at = _given_sessions(sessions_given)
+    else:
+        sessions = {seed: run_scenario(SCENARIO, duration_s, seed) for seed in seeds}
+        change_at = {seed: CHANGE_FRACTION * duration_s for seed in seeds}
     references = ({seed: run_scenario(SETTLED_SCENARIO, duration_s, seed) for seed in seeds}
                   if settled else {})
     rows = []
     for text, config in configs:
         for seed, session in sessions.items():
+            change_s = change_at[seed]
             t0 = time.perf_counter()
             r = replay(session, free_space, config, step1="torch",
                        setup_changes=announced_changes(session) if announce else ())
             try:
                 pre, post = recovery_levels(r, session, change_s, settle_s=SETTLE_S)
             except ValueError as exc:
-                raise ConfigError(f"--duration {duration_s:g}: {exc}") from exc
+                what = f"--session {seed!r}" if sessions_given else f"--duration {duration_s:g}"
+                raise ConfigError(f"{what}: {exc}") from exc
             t = session.joint_states.t
             idx = np.searchsorted(t, r.offered_t)
             after = ~session.truth.in_contact & (t >= change_s) & (t < change_s + 60.0)
             offered = np.zeros(len(t), bool)
             offered[idx] = True
-            row = {"set": text, "seed": seed, "pre_n": round(pre, 4), "post_n": round(post, 4),
+            row = {"set": text, ("session" if sessions_given else "seed"): seed,
+                   "change_s": change_s, "pre_n": round(pre, 4), "post_n": round(post, 4),
                    "ratio": round(post / pre, 4),
                    "contact_offered": int(session.truth.in_contact[idx].sum()),
                    "offered": int(len(idx)),
@@ -130,7 +168,7 @@ def run_recovery(seeds: list[int], settings: list[str], duration_s: float = 220.
                    "drifts": r.status["counters"]["drifts"],
                    "setup_changes": r.status["counters"]["setup_changes"],
                    "seconds": round(time.perf_counter() - t0, 1)}
-            line = (f"{text} seed {seed}: pre {pre:.3f} N, post {post:.3f} N, ratio "
+            line = (f"{text} {'session' if sessions_given else 'seed'} {seed}: pre {pre:.3f} N, post {post:.3f} N, ratio "
                     f"{post / pre:.3f}, contact samples offered {row['contact_offered']} of "
                     f"{row['offered']}, free motion offered in the minute after the change "
                     f"{row['free_offered_after']:.0%}")
@@ -174,6 +212,9 @@ def run_recovery(seeds: list[int], settings: list[str], duration_s: float = 220.
             excess = [r["excess"] for r in rows if r["set"] == text]
             summary[-1].update(mean_excess=round(float(np.mean(excess)), 4),
                                worst_excess=max(excess))
-    return {"scenario": SCENARIO, "duration_s": duration_s, "change_s": change_s,
+    return {"scenario": None if sessions_given else SCENARIO,
+            "sessions": sessions_given or None,
+            "duration_s": None if sessions_given else duration_s,
+            "change_s": None if sessions_given else CHANGE_FRACTION * duration_s,
             "announced": announce,
             "target_ratio": TARGET_RATIO, "rows": rows, "summary": summary}
