@@ -99,3 +99,20 @@ def test_setup_change_windows_and_contacts_found_on_known_arrays():
                               contact, judged_from_s=60.0)
     assert (found["episodes"], found["found"], found["missed"]) == (2, 1, 1)
     assert found["missed_episodes"][0]["start_s"] == pytest.approx(170.0)
+
+
+def test_recovery_and_inspect_take_a_concat_of_recordings(bundle, wpi_data, tmp_path):
+    a, b = wpi_data / "one_no_weight.csv", wpi_data / "one_205g_parallel.csv"
+    spec = f"concat:{a},{b}*4"                    # the change at 30 s, 150 s in all
+    out = tmp_path / "recovery.json"
+    done = _run("recovery", "--model", str(bundle), "--session", spec, "--json", str(out))
+    assert done.returncode == 0, done.stderr
+    (row,) = json.loads(out.read_text())["rows"]
+    assert row["session"] == spec and row["change_s"] == pytest.approx(5999 * 0.005)
+    assert 0.05 < row["pre_n"] < 5.0 and 0.05 < row["post_n"] < 5.0
+    assert row["contact_offered"] == 0                         # free motion throughout
+    info = json.loads(_run("inspect", spec).stdout)
+    assert info["samples"] == 5 * 5999 and info["truth"]
+    assert [c["id"] for c in info["setup_changes"]] == ["recording:one_205g_parallel.csv"]
+    refused = _run("recovery", "--model", str(bundle), "--session", str(a))
+    assert refused.returncode == 2 and "has no truth" in refused.stderr
