@@ -1,0 +1,138 @@
+"""The whole pipeline on a real robot's recordings: ``wrenchd real-robot``.
+
+One command, four parts, all on the WPI dVRK PSM recordings (free motion, so the true tip
+force is zero except where contacts are injected):
+
+1. **Newtons at the tip**: step 1 fitted on ``one_no_weight.csv``, the free-motion tip force
+   of ``two.csv`` (never seen) and of the training recording per model
+   (:func:`wrenchd.service.studies.real_data.evaluate`).
+2. **Known loads**: the 105 g and 205 g parallelogram loads (full and half speed) at their
+   photographed point, against the estimated external torques.
+3. **A real set-up change**: a bundle fitted by ``wrenchd fit`` on ``one_no_weight.csv``
+   serves ``concat:one_no_weight.csv*N,one_205g_parallel.csv*N`` under each adaptation
+   policy (the load appears at the change of recording, unannounced); the free-motion tip
+   force before and after, and over time.
+4. **Injected sessions**: ``inject:S:concat:two.csv*M,one_no_weight.csv*M`` (a simulated
+   trocar and tip contacts drawn with seed S added to real efforts), gated: contact force
+   RMSE, free-motion force, contacts found, contact samples offered to training.
+
+Everything lands in one folder: ``report.md``, ``report.json``, the compare runs' own
+tables and plots, and the bundle that served.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from wrenchd.models.errors import ConfigError
+
+#: Where the WPI loads sat, in ``parallel_upper``'s frame [m]
+#: (``shared/data/wpi-psm/README.md``: 16.5 cm along the link, 2.0 / 2.3 cm above it).
+LOAD_POINTS = {0.105: (0.165, -0.020, 0.0), 0.205: (0.165, -0.023, 0.0)}
+LOADED = (("one_105g_parallel.csv", 0.105), ("one_205g_parallel.csv", 0.205),
+          ("one_slow_105g_parallel.csv", 0.105), ("one_slow_205g_parallel.csv", 0.205))
+
+
+@dataclass(frozen=True)
+class RealRobotConfig:
+    """Sizes of the study; :meth:`quick` is the test suite's."""
+
+    repeats: int = 6                   # each recording of the set-up change session
+    inject_repeats: int = 4            # each recording of an injected session
+    seeds: tuple[int, ...] = (3, 4, 5)
+    policies: tuple[str, ...] = ("gated", "frozen", "ungated")
+    models: tuple[str, ...] = ("lstm", "ls", "hybrid")
+    hybrid_epochs: int | None = None   # the residual net's (default of the hybrid)
+    fit_epochs: int = 200              # the bundle's residual net
+
+    @classmethod
+    def quick(cls) -> RealRobotConfig:
+        return cls(repeats=1, inject_repeats=1, seeds=(3,), policies=("gated", "frozen"),
+                   models=("ls", "hybrid"), hybrid_epochs=20, fit_epochs=20)
+
+
+def _path(data: Path, name: str) -> str:
+    path = data / name
+    if not path.is_file():
+        raise ConfigError(f"{path}: missing; --data must be the WPI recordings folder "
+                          "(shared/data/wpi-psm)")
+    return str(path)
+
+
+def newtons_and_loads(data: Path, config: RealRobotConfig) -> dict[str, Any]:
+    """Parts 1 and 2: :func:`~wrenchd.service.studies.real_data.evaluate` with known loads."""
+    from wrenchd.service.studies.real_data import KnownLoad, Source, evaluate
+
+    loads = [KnownLoad(Source(_path(data, name)), mass, "parallel_upper", LOAD_POINTS[mass])
+             for name, mass in LOADED]
+    return evaluate([Source(_path(data, "one_no_weight.csv"))],
+                    Source(_path(data, "two.csv")), config.models,
+                    hybrid_epochs=config.hybrid_epochs, known_loads=loads)
+
+
+def fit_bundle(data: Path, out: Path, config: RealRobotConfig) -> dict[str, Any]:
+    """A bundle fitted on ``one_no_weight.csv`` as ``wrenchd fit`` fits it."""
+    from wrenchd.adapters.recordings import read_recording
+    from wrenchd.models.estimator.hybrid import HybridConfig, ResidualNetConfig
+    from wrenchd.service.studies.fit import FitConfig, fit_recordings
+
+    residual = ResidualNetConfig(epochs=config.fit_epochs)
+    return fit_recordings([read_recording(_path(data, "one_no_weight.csv"))], out,
+                          config=FitConfig(hybrid=HybridConfig(residual=residual)),
+                          progress=lambda *_: None)
+
+
+def _rows(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The figures of each compare row that the report shows."""
+    keep = ("session", "policy", "samples", "wall_s", "setup_changes", "truth", "false_force_N",
+            "gate", "gate_episodes", "contacts_found", "contamination", "final_model_version",
+            "estimated_force_mean_N", "events")
+    return [{k: r[k] for k in keep if k in r} for r in rows]
+
+
+def run(data: str | Path, out: str | Path, config: RealRobotConfig | None = None,
+        log: Callable[[str], None] = print, command: str = "") -> dict[str, Any]:
+    """The four parts; writes ``out`` and returns the JSON-ready results."""
+    from wrenchd.service.pipeline.step1 import load_free_space
+    from wrenchd.service.replay.compare import run_compare
+
+    config = config if config is not None else RealRobotConfig()
+    data, out = Path(data), Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    started = time.monotonic()
+    r: dict[str, Any] = {"command": command, "data": str(data), "config": config.__dict__ | {"seeds": list(
+        config.seeds), "policies": list(config.policies), "models": list(config.models)}}
+    log("newtons at the tip and known loads ...")
+    r["step1"] = newtons_and_loads(data, config)
+    log("fitting the bundle on one_no_weight.csv ...")
+    bundle = out / "bundle"
+    if bundle.exists():                        # this folder's own bundle, from a former run
+        import shutil
+
+        shutil.rmtree(bundle)
+    fit = fit_bundle(data, bundle, config)
+    r["bundle"] = {"path": bundle.name, "held_out": fit.get("held_out"),
+                   "digest": fit.get("bundle_digest")}
+    free_space = load_free_space(str(bundle))
+    change = (f"concat:{_path(data, 'one_no_weight.csv')}*{config.repeats},"
+              f"{_path(data, 'one_205g_parallel.csv')}*{config.repeats}")
+    log(f"set-up change: {', '.join(config.policies)} ...")
+    r["setup_change"] = _rows(run_compare(list(config.policies), [change], out / "setup-change",
+                                          free_space, log=log))
+    injected = [f"inject:{s}:concat:{_path(data, 'two.csv')}*{config.inject_repeats},"
+                f"{_path(data, 'one_no_weight.csv')}*{config.inject_repeats}"
+                for s in config.seeds]
+    log("injected sessions ...")
+    r["injected"] = _rows(run_compare(["gated"], injected, out / "injected", free_space,
+                                      log=log))
+    r["wall_s"] = round(time.monotonic() - started, 1)
+    (out / "report.json").write_text(json.dumps(r, indent=1, default=str) + "\n")
+    from wrenchd.service.studies.real_robot_report import markdown
+
+    (out / "report.md").write_text(markdown(r))
+    return r

@@ -1,0 +1,82 @@
+"""The Markdown report of :func:`wrenchd.service.studies.real_robot.run`."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from wrenchd.service.studies.real_data_report import known_loads_section, tip_force_section
+
+
+def _f(x: Any, digits: int = 2) -> str:
+    return "-" if x is None else f"{x:.{digits}f}"
+
+
+def _get(d: dict[str, Any], *keys: str) -> Any:
+    for k in keys:
+        if not isinstance(d, dict) or k not in d:
+            return None
+        d = d[k]
+    return d
+
+
+def _name(spec: str) -> str:
+    """A session spec with its folders dropped, for tables."""
+    return ",".join(p.rsplit("/", 1)[-1] for p in spec.split(","))
+
+
+def setup_change_section(rows: list[dict[str, Any]]) -> list[str]:
+    lines = ["## A real set-up change: 205 g on the parallelogram, unannounced\n",
+             ("`wrenchd compare` with the bundle fitted on `one_no_weight.csv`, on "
+              f"`{_name(rows[0]['session'])}`: the load appears where the recording changes. "
+              "Free-motion tip force RMS over the 30 s before the change and over the 30 s "
+              "that start 60 s after it; the true force is zero throughout.\n"),
+             "| policy | change at [s] | before [N] | after [N] | ratio | model versions |",
+             "| --- | --- | --- | --- | --- | --- |"]
+    for r in rows:
+        for c in r.get("setup_changes") or [{}]:
+            lines.append(f"| {r['policy']} | {_f(c.get('at_s'), 1)} | {_f(c.get('before_N'))} "
+                         f"| {_f(c.get('after_N'))} | {_f(c.get('ratio'))} | "
+                         f"{r.get('final_model_version', '-')} |")
+    lines += ["", "Free-motion force over time per policy: `setup-change/` (plots and "
+              "`compare.md`).", ""]
+    return lines
+
+
+def injected_section(rows: list[dict[str, Any]]) -> list[str]:
+    lines = ["## Real motion, simulated trocar and contacts\n",
+             ("Gated, the same bundle. Contact force RMSE: tip force error while in contact; "
+              "free-motion force: the estimate's mean and 95th percentile where the truth is "
+              "free; contacts over 2 N found by the gate; contact samples offered to training "
+              "(after the calibration minute; during it every sample is offered by design).\n"),
+             "| session | contact force RMSE [N] | free-motion force mean / p95 [N] | contacts "
+             "> 2 N found | gate precision | contact samples offered (after calibration) |",
+             "| --- | --- | --- | --- | --- | --- |"]
+    for r in rows:
+        found = r.get("contacts_found") or {}
+        cont = r.get("contamination") or {}
+        lines.append(
+            f"| {_name(r['session'])} | {_f(_get(r, 'truth', 'force_rmse_N', 'contact'))} | "
+            f"{_f(_get(r, 'false_force_N', 'mean'))} / {_f(_get(r, 'false_force_N', 'p95'))} | "
+            f"{found.get('found', '-')} of {found.get('episodes', '-')} | "
+            f"{_f(_get(r, 'gate', 'precision'))} | {cont.get('in_contact', '-')} "
+            f"({cont.get('in_contact_after_calibration', '-')}) |")
+    return lines + [""]
+
+
+def markdown(r: dict[str, Any]) -> str:
+    step1 = r["step1"]
+    lines = ["# The whole pipeline on a real dVRK PSM\n",
+             f"Command: `{r.get('command', 'wrenchd real-robot')}` ({r['wall_s']:.0f} s).\n",
+             (f"Recordings: `{r['data']}` (WPI free motion). Step 1 fitted on "
+              "`one_no_weight.csv` alone; tested on `two.csv`, another trajectory.\n")]
+    lines += tip_force_section(step1)
+    lines += known_loads_section(step1["known_loads"])
+    held = (r.get("bundle") or {}).get("held_out") or {}
+    lines += [f"Bundle: `{r['bundle']['path']}/` (`wrenchd fit` on `one_no_weight.csv`, the "
+              "last 20 % held out)" + (f"; held-out RMSE per joint, hybrid: "
+                                      + ", ".join(f"{v:.3f}" for v in held["hybrid_rmse"])
+                                      if "hybrid_rmse" in held else "") + ".\n"]
+    lines += setup_change_section(r["setup_change"])
+    lines += injected_section(r["injected"])
+    return "\n".join(lines)
