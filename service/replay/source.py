@@ -216,7 +216,8 @@ def announced_changes(session: Session) -> list[tuple[float, dict]]:
     daemon's ``setup`` key would have (``(time [s], detail)``, oldest first): the
     ``setup_change`` events a daemon logged (a session loaded from a daemon's MCAP log, read
     again here, only when asked: :func:`logged_setup_changes`), else a simulated session's
-    drift effects (their start; :func:`drift_onsets`)."""
+    drift effects (their start) and a ``concat:`` session's changes of recording
+    (:func:`drift_onsets`)."""
     source = str(session.metadata.get("source") or "")
     if source.lower().endswith(".mcap") and Path(source).is_file():
         logged = logged_setup_changes(source)
