@@ -1,7 +1,7 @@
 """``wrenchd compare --model BUNDLE`` on a concatenation of real recordings: each row gains
 ``setup_changes[]`` (free-motion tip force before and after the change), the change is
-announced to the pipeline only with ``--announce``, and an injected session's contacts are
-scored."""
+announced to the pipeline only with ``--announce``; ``recovery --session`` and ``inspect`` take
+the same session; the windows and the contacts-found count on arrays whose answer is known."""
 
 from __future__ import annotations
 
@@ -56,7 +56,7 @@ def test_compare_with_a_bundle_measures_the_set_up_change(bundle, wpi_data, tmp_
     frozen = rows[1]
     assert frozen["final_model_version"] == 0
     assert "set-up change" in (out / "compare.md").read_text()
-    assert (out / f"concat_one_no_weight.csv_one_205g_parallel.csv_3.png").is_file()
+    assert (out / "concat_one_no_weight.csv_one_205g_parallel.csv_3.png").is_file()
 
 
 def test_compare_announces_the_change_only_when_asked(bundle, wpi_data, tmp_path):
