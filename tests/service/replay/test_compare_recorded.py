@@ -116,3 +116,25 @@ def test_recovery_and_inspect_take_a_concat_of_recordings(bundle, wpi_data, tmp_
     assert [c["id"] for c in info["setup_changes"]] == ["recording:one_205g_parallel.csv"]
     refused = _run("recovery", "--model", str(bundle), "--session", str(a))
     assert refused.returncode == 2 and "has no truth" in refused.stderr
+
+
+def test_replay_scores_an_injected_session_like_a_simulated_one(bundle, wpi_data):
+    from wrenchd.service.pipeline import PipelineConfig
+    from wrenchd.service.pipeline.step1 import load_free_space
+    from wrenchd.service.replay.loop import replay
+    from wrenchd.service.replay.metrics import replay_metrics
+    from wrenchd.service.replay.policies import get_policy
+    from wrenchd.service.replay.source import load_session
+
+    a, b = wpi_data / "two.csv", wpi_data / "one_no_weight.csv"
+    session = load_session(f"inject:3:concat:{a},{b}*2")    # 90 s, contacts from 60 s
+    r = replay(session, load_free_space(str(bundle)),
+               get_policy("gated").configure(PipelineConfig()), policy="gated")
+    m = replay_metrics(r, session)
+    contact = m["truth"]["force_rmse_N"]["contact"]
+    assert contact is not None and 0.0 < contact < 20.0
+    assert m["gate"]["recall"] is not None and m["contamination"]["offered"] > 0
+    found = m["contacts_found"]
+    assert found["episodes"] >= 1 and found["found"] + found["missed"] == found["episodes"]
+    (change,) = m["setup_changes"]
+    assert change["at_s"] == pytest.approx(5999 * 0.005) and change["before_N"] > 0
