@@ -3,13 +3,18 @@
 The classic identification of the dVRK (Wang, Gondokaryono, Munawar, Fischer, RA-L 2019) in
 its simplest unconstrained form: joint torques are linear in the parameters,
 
-    tau = Y(q, dq, ddq) theta + Ia * ddq + Fc * c(dq) + Fv * dq + Fo [+ K * q]
+    tau = Y(q, dq, ddq) theta + Ia * ddq + Fc * c(dq) + Fv * dq + Fo [+ K * q] [+ Fh * p(q)]
 
 with ``Y`` pinocchio's joint-torque regressor of the PSM chain (10 inertial parameters per
 link, :meth:`wrenchd.models.physics.dynamics.RigidBodyModel.regressor`), ``Ia`` the armature
 (reflected motor inertia), ``Fc`` Coulomb friction with ``c(dq) = sign(dq)`` or, smoothed,
 ``tanh(dq / v0)``, ``Fv`` viscous friction, ``Fo`` a constant offset and, optionally, ``K`` a
-linear spring per joint (the insertion stage's counterbalance, the tool's roll cable). Many
+linear spring per joint (the insertion stage's counterbalance, the tool's roll cable) and,
+optionally, ``Fh`` a presliding friction per joint with ``p`` the play operator of
+:mod:`wrenchd.models.physics.hysteresis` (friction that reverses over a displacement after the
+joint reverses, as in the PSM's cable drives, not at the instant its velocity changes sign).
+``p`` has a memory: a segment's columns start it afresh at the first sample unless the caller
+passes it (``presliding``), as a stream that continues does. Many
 inertial parameters are not identifiable from joint torques alone (the regressor is rank
 deficient), so the minimum-norm least-squares solution is used; the predicted torques are
 unique even where the parameters are not. No physical-consistency constraints (positive
@@ -25,10 +30,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 from scipy.signal import savgol_filter
 from wrenchd.models.errors import ConfigError, DataError
 from wrenchd.models.physics.dynamics import RigidBodyModel
+from wrenchd.models.physics.hysteresis import play
 from wrenchd.models.series import N_JOINTS
 
 #: Inertial columns of the regressor: 10 standard parameters for each of the six links.
@@ -62,11 +68,22 @@ class LeastSquaresConfig(BaseModel):
         description="Coulomb friction as tanh(dq / v0) with this v0 [rad/s; m/s]; None: "
                     "sign(dq). A few times the velocity noise (about 0.01 rad/s on the PSM)")
     spring: bool = Field(default=True, description="a linear spring K * q per joint")
+    hysteresis_width: tuple[float, ...] | None = Field(
+        default=None,
+        description="play-operator widths per joint [rad; m] of a presliding friction column "
+                    "Fh * p(q) per joint; None: no such column")
     rcond: float = Field(
         default=1e-5, gt=0.0,
         description="lstsq cut-off of small singular values (relative): drops the directions "
                     "the data barely excite, whose large minimum-norm coefficients would turn "
                     "small input errors (an estimated acceleration) into large torque errors")
+
+    @field_validator("hysteresis_width")
+    @classmethod
+    def _six_widths(cls, v: tuple[float, ...] | None) -> tuple[float, ...] | None:
+        if v is not None and (len(v) != N_JOINTS or min(v) <= 0):
+            raise ValueError(f"hysteresis_width must be {N_JOINTS} positive widths, got {v}")
+        return v
 
 
 #: The default columns.
@@ -90,13 +107,29 @@ class RigidBodyFrictionModel:
 
     @staticmethod
     def n_columns(config: LeastSquaresConfig) -> int:
-        """60 inertial, 6 armature, 6 Coulomb, 6 viscous, 6 offset [, 6 spring]."""
-        return N_INERTIAL + 4 * N_JOINTS + (N_JOINTS if config.spring else 0)
+        """60 inertial, 6 armature, 6 Coulomb, 6 viscous, 6 offset [, 6 spring] [, 6 play]."""
+        return (N_INERTIAL + 4 * N_JOINTS + (N_JOINTS if config.spring else 0)
+                + (N_JOINTS if config.hysteresis_width is not None else 0))
+
+    @staticmethod
+    def presliding(q: np.ndarray, config: LeastSquaresConfig) -> np.ndarray | None:
+        """Play-operator outputs (N, 6) of one segment of (N, 6) positions started afresh, or
+        None where ``config`` has no presliding column."""
+        if config.hysteresis_width is None:
+            return None
+        return play(np.asarray(q, dtype=np.float64).reshape(-1, N_JOINTS),
+                    np.array(config.hysteresis_width))[0]
 
     @staticmethod
     def columns(rigid: RigidBodyModel, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray,
-                config: LeastSquaresConfig = DEFAULT_LEAST_SQUARES) -> np.ndarray:
-        """Regressor (N, 6, :meth:`n_columns`) of (N, 6) positions, velocities, accelerations."""
+                config: LeastSquaresConfig = DEFAULT_LEAST_SQUARES,
+                presliding: np.ndarray | None = None) -> np.ndarray:
+        """Regressor (N, 6, :meth:`n_columns`) of (N, 6) positions, velocities, accelerations.
+
+        ``presliding``: (N, 6) play-operator outputs where the samples continue a stream
+        (:func:`wrenchd.models.physics.hysteresis.play` with its state); None computes them
+        as one segment from its first sample. Ignored without ``config.hysteresis_width``.
+        """
         y = rigid.regressor(q, dq, ddq)
         n = y.shape[0]
         q, dq, ddq = (np.asarray(a, dtype=np.float64).reshape(n, N_JOINTS) for a in (q, dq, ddq))
@@ -104,6 +137,12 @@ class RigidBodyFrictionModel:
         per_joint = [ddq, coulomb_shape(dq, config.coulomb_velocity), dq, np.ones_like(dq)]
         if config.spring:
             per_joint.append(q)
+        if config.hysteresis_width is not None:
+            p = (RigidBodyFrictionModel.presliding(q, config) if presliding is None
+                 else np.asarray(presliding, dtype=np.float64))
+            if p.shape != q.shape:
+                raise DataError(f"presliding must have shape {q.shape}, got {p.shape}")
+            per_joint.append(p)
         out = np.empty((n, N_JOINTS, RigidBodyFrictionModel.n_columns(config)))
         out[:, :, :N_INERTIAL] = y
         for k, values in enumerate(per_joint):
@@ -114,15 +153,17 @@ class RigidBodyFrictionModel:
     @classmethod
     def fit(cls, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray, tau: np.ndarray,
             rigid: RigidBodyModel | None = None,
-            config: LeastSquaresConfig = DEFAULT_LEAST_SQUARES) -> RigidBodyFrictionModel:
+            config: LeastSquaresConfig = DEFAULT_LEAST_SQUARES,
+            presliding: np.ndarray | None = None) -> RigidBodyFrictionModel:
         """Least squares on (N, 6) positions, velocities, accelerations and torques.
 
         Each joint's equations are scaled by that joint's torque standard deviation, so the
-        insertion joint (N) and the revolute joints (N m) weigh alike.
+        insertion joint (N) and the revolute joints (N m) weigh alike. ``presliding``: as in
+        :meth:`columns` (pass it for several segments concatenated, each started afresh).
         """
         rigid = rigid if rigid is not None else RigidBodyModel()
         tau = np.asarray(tau, dtype=np.float64)
-        a = cls.columns(rigid, q, dq, ddq, config)
+        a = cls.columns(rigid, q, dq, ddq, config, presliding)
         if tau.shape != a.shape[:2]:
             raise DataError(f"torques must have shape {a.shape[:2]}, got {tau.shape}")
         scale = np.maximum(tau.std(axis=0), 1e-9)                # (6,)
@@ -132,10 +173,11 @@ class RigidBodyFrictionModel:
         return cls(coef, int(rank), config)
 
     def predict(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray,
-                rigid: RigidBodyModel | None = None) -> np.ndarray:
-        """Joint torques (N, 6) [N m; N]."""
+                rigid: RigidBodyModel | None = None,
+                presliding: np.ndarray | None = None) -> np.ndarray:
+        """Joint torques (N, 6) [N m; N] (``presliding`` as in :meth:`columns`)."""
         rigid = rigid if rigid is not None else RigidBodyModel()
-        return self.columns(rigid, q, dq, ddq, self.config) @ self.coefficients
+        return self.columns(rigid, q, dq, ddq, self.config, presliding) @ self.coefficients
 
     def to_dict(self) -> dict:
         """JSON-ready parameters (:meth:`from_dict` reads them back)."""

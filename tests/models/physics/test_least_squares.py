@@ -128,3 +128,43 @@ def test_causal_acceleration_refusals():
         CausalAcceleration(np.zeros((6, 1)), DT)
     with pytest.raises(DataError):
         smoothed_acceleration(np.zeros((3, 6)), DT)
+
+
+def test_presliding_columns_recover_known_friction():
+    """Torques simulated from the columns with a presliding friction: the fit recovers the six
+    presliding coefficients, and the columns without them cannot express those torques."""
+    q, dq, ddq = motion(12.0, seed=5)
+    rigid = RigidBodyModel()
+    config = LeastSquaresConfig(hysteresis_width=(0.01, 0.01, 0.001, 0.01, 0.01, 0.01),
+                                rcond=1e-10)
+    cols = RigidBodyFrictionModel.columns(rigid, q, dq, ddq, config)
+    assert cols.shape[2] == RigidBodyFrictionModel.n_columns(config) == 96
+    truth = np.random.default_rng(2).normal(size=cols.shape[2]) * 0.01
+    fh = np.array([0.05, 0.04, 0.3, 0.002, 0.001, 0.001])      # [N m, N m, N, N m, ...]
+    truth[-6:] = fh
+    tau = cols @ truth
+    model = RigidBodyFrictionModel.fit(q, dq, ddq, tau, rigid, config)
+    np.testing.assert_allclose(model.coefficients[-6:], fh, rtol=1e-6)
+    assert np.abs(model.predict(q, dq, ddq, rigid) - tau).max() < 1e-6 * np.abs(tau).max()
+    without = RigidBodyFrictionModel.fit(q, dq, ddq, tau, rigid,
+                                         LeastSquaresConfig(rcond=1e-10))
+    miss = np.sqrt(np.mean((without.predict(q, dq, ddq, rigid) - tau) ** 2, axis=0))
+    assert np.all(miss > 0.1 * fh), (miss, fh)
+    # A stream that continues: the presliding state carried over gives the whole segment's
+    # columns; restarting at the cut does not.
+    from wrenchd.models.physics.hysteresis import play
+
+    width = np.array(config.hysteresis_width)
+    _, follower = play(q[:1000], width)
+    carried = play(q[1000:], width, follower)[0]
+    whole = model.predict(q, dq, ddq, rigid)
+    np.testing.assert_allclose(model.predict(q[1000:], dq[1000:], ddq[1000:], rigid, carried),
+                               whole[1000:], atol=1e-12)
+    assert not np.allclose(model.predict(q[1000:], dq[1000:], ddq[1000:], rigid),
+                           whole[1000:], atol=1e-6)
+    again = RigidBodyFrictionModel.from_dict(model.to_dict())
+    assert again.config == config
+    with pytest.raises(ValueError):
+        LeastSquaresConfig(hysteresis_width=(0.01, 0.0, 0.001, 0.01, 0.01, 0.01))
+    with pytest.raises(DataError):
+        model.predict(q, dq, ddq, rigid, carried)                # wrong length
