@@ -5,7 +5,13 @@
 * ``physics``: the rigid-body + friction model identified by least squares
   (:mod:`wrenchd.models.physics.least_squares`), fed with the causal acceleration estimate
   ``ddq_hat`` (:mod:`wrenchd.models.physics.causal_acceleration`): it extrapolates to joint
-  states the training never visited.
+  states the training never visited. By default (:data:`HYBRID_PHYSICS`) its columns include
+  a presliding friction per joint (the play operator of
+  :mod:`wrenchd.models.physics.hysteresis`, 0.01 rad wide, 1 mm on the insertion joint), and
+  the fit drops the parameter directions the training excites below 1e-4 of the strongest
+  (1e-5 in the plain least-squares default): both lower the free-motion tip force of a model
+  fitted on four fifths of the phases of a periodic real recording and tested on the fifth,
+  the states it has not seen.
 * ``residual``: a small feed-forward network (tanh) learns what physics misses, from the
   joint state and the same acceleration estimate (so it can also correct that estimate's lag
   and noise where it has seen the trajectory).
@@ -43,13 +49,13 @@ from wrenchd.models.errors import ConfigError, DataError
 from wrenchd.models.estimator.coverage import Coverage, CoverageConfig
 from wrenchd.models.estimator.features import N_FEATURES, segments
 from wrenchd.models.physics.causal_acceleration import (
-    AccelerationState,
     CausalAcceleration,
     CausalAccelerationConfig,
     accel_window,
     lookahead_samples,
 )
 from wrenchd.models.physics.dynamics import RigidBodyModel
+from wrenchd.models.physics.hysteresis import play, play_step
 from wrenchd.models.physics.least_squares import (
     LeastSquaresConfig,
     RigidBodyFrictionModel,
@@ -61,6 +67,15 @@ FORMAT = "wrenchd-hybrid-step1"
 FORMAT_VERSION = 1
 #: Residual network inputs: ``[q, dq, ddq_hat]``.
 N_RESIDUAL_INPUTS = 3 * N_JOINTS
+
+#: The hybrid's default physics columns: the least-squares defaults plus a presliding
+#: friction per joint [rad; m], keeping the directions excited above 1e-4 of the strongest.
+HYBRID_PHYSICS = LeastSquaresConfig(hysteresis_width=(0.01, 0.01, 0.001, 0.01, 0.01, 0.01),
+                                    rcond=1e-4)
+
+#: A hybrid's streaming state: the acceleration filter's (B, taps, 6) velocity history and
+#: (B,) started flags, then the (B, 6) play-operator followers [rad; m].
+HybridState = tuple[np.ndarray, np.ndarray, np.ndarray]
 
 
 class ResidualNetConfig(BaseModel):
@@ -81,8 +96,10 @@ class HybridConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    physics: LeastSquaresConfig = Field(default_factory=LeastSquaresConfig)
-    acceleration: CausalAccelerationConfig = Field(default_factory=CausalAccelerationConfig)
+    physics: LeastSquaresConfig = Field(default=HYBRID_PHYSICS,
+                                        description="least-squares physics columns")
+    acceleration: CausalAccelerationConfig = Field(default_factory=CausalAccelerationConfig,
+                                                   description="causal acceleration filter")
     residual: ResidualNetConfig = Field(default_factory=ResidualNetConfig)
     coverage: CoverageConfig = Field(default_factory=CoverageConfig)
     max_gap_s: float = Field(default=0.05, gt=0.0, description="a longer step splits a series")
@@ -125,7 +142,8 @@ class HybridParts:
 
 @dataclass
 class HybridStep1:
-    """Physics + trusted residual; streaming state: the acceleration filter's history."""
+    """Physics + trusted residual; streaming state (:data:`HybridState`): the acceleration
+    filter's velocity history and the play operator's followers."""
 
     config: HybridConfig
     physics: RigidBodyFrictionModel
@@ -140,16 +158,18 @@ class HybridStep1:
         self._rigid = RigidBodyModel()
 
     # -- batch ---------------------------------------------------------------------------
-    def _combine(self, x: np.ndarray, acc: np.ndarray) -> HybridParts:
+    def _combine(self, x: np.ndarray, acc: np.ndarray,
+                 presliding: np.ndarray | None) -> HybridParts:
         q, dq = x[:, :N_JOINTS], x[:, N_JOINTS:]
-        phys = self.physics.predict(q, dq, acc, self._rigid)
+        phys = self.physics.predict(q, dq, acc, self._rigid, presliding)
         res = self.residual(np.concatenate([q, dq, acc], axis=1))
         return HybridParts(phys, res, self.coverage.weight(x), acc)
 
     def parts(self, features: np.ndarray) -> HybridParts:
         """Physics, residual, trust and acceleration of one gap-free segment of (T, 12) rows."""
         x = _rows(features)
-        return self._combine(x, self.acceleration.estimate(x[:, N_JOINTS:]))
+        return self._combine(x, self.acceleration.estimate(x[:, N_JOINTS:]),
+                             self.physics.presliding(x[:, :N_JOINTS], self.physics.config))
 
     def predict_sequence(self, features: np.ndarray) -> np.ndarray:
         """Torques (T, 6) of one gap-free segment of (T, 12) rows, from a fresh state."""
@@ -178,12 +198,16 @@ class HybridStep1:
         arrays are read-only after fitting."""
         return self
 
-    def initial_state(self, batch: int = 1) -> AccelerationState:
+    def initial_state(self, batch: int = 1) -> HybridState:
         """Fresh state of ``batch`` streams."""
-        return self.acceleration.initial_state(batch)
+        return (*self.acceleration.initial_state(batch), np.zeros((batch, N_JOINTS)))
 
-    def step(self, x: np.ndarray, state: AccelerationState | None = None
-             ) -> tuple[np.ndarray, AccelerationState]:
+    def _widths(self) -> np.ndarray | None:
+        w = self.physics.config.hysteresis_width
+        return None if w is None else np.array(w)
+
+    def step(self, x: np.ndarray, state: HybridState | None = None
+             ) -> tuple[np.ndarray, HybridState]:
         """One sample: (12,) or (B, 12) rows -> (6,) or (B, 6) torques and the new state
         (``state`` is not modified; None starts fresh streams)."""
         x = np.asarray(x, dtype=np.float64)
@@ -191,16 +215,27 @@ class HybridStep1:
         xb = _rows(x[None] if single else x)
         if state is None:
             state = self.initial_state(len(xb))
-        acc, state = self.acceleration.step(xb[:, N_JOINTS:], state)
-        y = self._combine(xb, acc).torque
-        return (y[0] if single else y), state
+        history, started, follower = state
+        acc, (history, new_started) = self.acceleration.step(xb[:, N_JOINTS:],
+                                                             (history, started))
+        width, presliding = self._widths(), None
+        if width is not None:
+            presliding, follower = play_step(xb[:, :N_JOINTS], width, follower, started)
+        y = self._combine(xb, acc, presliding).torque
+        return (y[0] if single else y), (history, new_started, follower)
 
-    def run(self, x: np.ndarray, state: AccelerationState
-            ) -> tuple[np.ndarray, AccelerationState]:
+    def run(self, x: np.ndarray, state: HybridState) -> tuple[np.ndarray, HybridState]:
         """Consecutive samples of one stream: (T, 12) -> (T, 6) torques and the new state."""
         xb = _rows(x)
-        acc, state = self.acceleration.run(xb[:, N_JOINTS:], state)
-        return self._combine(xb, acc).torque, state
+        history, started, follower = state
+        acc, (history, new_started) = self.acceleration.run(xb[:, N_JOINTS:],
+                                                            (history, started))
+        width, presliding = self._widths(), None
+        if width is not None and len(xb):
+            presliding, last = play(xb[:, :N_JOINTS], width,
+                                    follower[0] if started[0] else None)
+            follower = last[None]
+        return self._combine(xb, acc, presliding).torque, (history, new_started, follower)
 
     # -- persistence ---------------------------------------------------------------------
     def arrays(self) -> dict[str, np.ndarray]:
@@ -328,11 +363,13 @@ def fit_hybrid(series: Sequence[JointStates], config: HybridConfig | None = None
     physics = RigidBodyFrictionModel.fit(xi[:, :N_JOINTS], xi[:, N_JOINTS:],
                                          np.concatenate([a for _, _, a in ident]),
                                          np.concatenate([y for _, y, _ in ident]), rigid,
-                                         config.physics)
+                                         config.physics,
+                                         _presliding([x for x, _, _ in ident], config.physics))
     physics_s = time.perf_counter() - start
     inputs = np.concatenate([x_all, a_all], axis=1)
     residual_target = tau - physics.predict(x_all[:, :N_JOINTS], x_all[:, N_JOINTS:], a_all,
-                                            rigid)
+                                            rigid, _presliding([x for x, _ in segs],
+                                                               config.physics))
     start = time.perf_counter()
     net, loss = train_residual(inputs, residual_target, config.residual, on_epoch)
     info = {"n_samples": len(x_all), "dt_s": dt, "physics_rank": physics.rank,
@@ -341,6 +378,15 @@ def fit_hybrid(series: Sequence[JointStates], config: HybridConfig | None = None
             "residual_final_loss": loss}
     return HybridStep1(config, physics, accel, net,
                        Coverage.fit([x for x, _ in segs], config.coverage), info)
+
+
+def _presliding(segments_x: Sequence[np.ndarray], config: LeastSquaresConfig
+                ) -> np.ndarray | None:
+    """Play-operator outputs of several (T, 12) segments, each started afresh, concatenated."""
+    if config.hysteresis_width is None:
+        return None
+    return np.concatenate([RigidBodyFrictionModel.presliding(x[:, :N_JOINTS], config)
+                           for x in segments_x])
 
 
 def train_residual(inputs: np.ndarray, target: np.ndarray, config: ResidualNetConfig,

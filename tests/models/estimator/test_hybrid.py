@@ -8,13 +8,14 @@ from wrenchd.models.errors import ConfigError, DataError
 from wrenchd.models.estimator.coverage import Coverage, CoverageConfig, smoothstep
 from wrenchd.models.estimator.estimator import TwoStepEstimator
 from wrenchd.models.estimator.hybrid import (
+    HYBRID_PHYSICS,
     HybridConfig,
     HybridStep1,
     ResidualNetConfig,
     fit_hybrid,
 )
 from wrenchd.models.physics.dynamics import RigidBodyModel
-from wrenchd.models.physics.least_squares import RigidBodyFrictionModel
+from wrenchd.models.physics.least_squares import LeastSquaresConfig, RigidBodyFrictionModel
 from wrenchd.models.series import JointStates
 
 DT = 0.005
@@ -189,3 +190,41 @@ def test_coverage_weight():
 def test_physics_is_the_least_squares_model(trained):
     assert isinstance(trained.physics, RigidBodyFrictionModel)
     assert trained.info["physics_rank"] == trained.physics.rank
+
+
+def test_causal_the_future_does_not_change_the_past(trained):
+    """Acceleration filter and presliding state alike read only past samples."""
+    assert trained.config.physics == HYBRID_PHYSICS
+    assert trained.physics.config.hysteresis_width is not None
+    test = trajectory(3.0, phase=0.5)
+    x = np.concatenate([test.position, test.velocity], 1)
+    changed = x.copy()
+    changed[300:, :6] += 0.02                                 # other future positions ...
+    changed[300:, 6:] *= -1.0                                 # ... and velocities
+    before, after = trained.predict_sequence(x), trained.predict_sequence(changed)
+    np.testing.assert_array_equal(after[:300], before[:300])
+    assert not np.allclose(after[300:], before[300:])
+
+
+def test_a_model_without_presliding_columns_saves_loads_and_streams(tmp_path):
+    """The columns of the plain least-squares default (as hybrid files written before the
+    presliding column have them): fitted, saved, loaded, streamed."""
+    config = HybridConfig(physics=LeastSquaresConfig(),
+                          residual=ResidualNetConfig(hidden=(8,), epochs=2))
+    plain = fit_hybrid([trajectory(6.0)], config)
+    assert plain.physics.coefficients.shape == (90,)
+    test = trajectory(1.0, phase=0.4)
+    x = np.concatenate([test.position, test.velocity], 1)
+    description = plain.description()
+    for physics_config in (description["config"]["physics"], description["physics"]["config"]):
+        del physics_config["hysteresis_width"]                # as an older file has it
+    loaded = HybridStep1.from_parts(plain.arrays(), description)
+    assert loaded.config == plain.config
+    np.testing.assert_array_equal(loaded.predict_sequence(x), plain.predict_sequence(x))
+    path = tmp_path / "plain.pt"
+    plain.save(path)
+    from_file, state, rows = HybridStep1.load(path), None, []
+    for row in x:
+        y, state = from_file.step(row, state)
+        rows.append(y)
+    np.testing.assert_allclose(np.array(rows), plain.predict_sequence(x), atol=1e-10)
