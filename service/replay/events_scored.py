@@ -8,7 +8,10 @@ found or missed.
   session without truth) of the ``BEFORE_S`` before the change (``before_N``) and of the
   ``AFTER_WINDOW_S`` that start ``SETTLE_S`` after it (``after_N``), and ``ratio`` =
   after / before. In free motion the true tip force is zero, so these are errors: a ratio near
-  1 means the pipeline is back to its pre-change accuracy a minute after the change.
+  1 means the pipeline is back to its pre-change accuracy a minute after the change. The
+  ``SEAM_SKIP_S`` after each seam of a ``concat:`` session (``metadata["seams_s"]``, where
+  one recording ends and the next begins and the joints jump, which a real arm never does)
+  are left out of both windows: the estimate's transient there is an artefact of the join.
 * :func:`contact_detection`: of the true contact episodes that start after the pipeline's
   calibration and whose true force peaks over ``FOUND_OVER_N``, how many the gate flagged
   (any sample of the episode called contact) and when the missed ones were.
@@ -26,6 +29,9 @@ from wrenchd.models.series import Session
 #: Window before a set-up change, delay from the change to the window after it, and that
 #: window's length [s].
 BEFORE_S, SETTLE_S, AFTER_WINDOW_S = 30.0, 60.0, 30.0
+#: Time after a seam of recordings left out of the windows [s] (the causal acceleration's
+#: window and the jump's transient are well inside it).
+SEAM_SKIP_S = 1.0
 #: Contact episodes peaking over this true force [N] count in :func:`contact_detection`.
 FOUND_OVER_N = 2.0
 
@@ -52,6 +58,11 @@ def setup_change_levels(t: np.ndarray, wrench: np.ndarray, sample: np.ndarray,
     truth = session.truth
     free = (~truth.in_contact[sample] if truth is not None
             else np.ones(len(t), dtype=bool))
+    seams = np.asarray((session.metadata or {}).get("seams_s", ()), dtype=np.float64)
+    if seams.size:
+        i = np.searchsorted(seams, t, side="right") - 1
+        joined = (i >= 0) & (t - seams[np.clip(i, 0, None)] < SEAM_SKIP_S)
+        free = free & ~joined
     out = []
     for name, at, _ in drift_onsets(session):
         before = free & (t >= at - BEFORE_S) & (t < at)

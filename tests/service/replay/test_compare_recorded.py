@@ -45,8 +45,9 @@ def test_compare_with_a_bundle_measures_the_set_up_change(bundle, wpi_data, tmp_
         (c,) = r["setup_changes"]
         assert c["at_s"] == pytest.approx(5999 * 0.005)
         assert c["id"] == "recording:one_205g_parallel.csv"
-        # every sample is free motion: 30 s before, the 30 s from 90 s on (to the end)
-        assert c["before_samples"] == 5999 and c["after_samples"] >= 5990
+        # every sample is free motion: 30 s before, the 30 s from 90 s on (to the end) less
+        # the first second after the seam at 90 s
+        assert c["before_samples"] == 5999 and 5780 <= c["after_samples"] <= 5800
         # tip force where the truth is zero: tenths of a newton to a few newtons, not 0
         assert 0.05 < c["before_N"] < 5.0 and 0.05 < c["after_N"] < 5.0, c
         assert c["ratio"] == pytest.approx(c["after_N"] / c["before_N"])
@@ -99,6 +100,30 @@ def test_setup_change_windows_and_contacts_found_on_known_arrays():
                               contact, judged_from_s=60.0)
     assert (found["episodes"], found["found"], found["missed"]) == (2, 1, 1)
     assert found["missed_episodes"][0]["start_s"] == pytest.approx(170.0)
+
+
+def test_the_first_second_after_a_seam_of_recordings_is_left_out_of_the_windows():
+    """A concat's seams (the joints jump there) spike the estimate: 20 N for the first second
+    after each seam, at 80 s and 170 s, would dominate both windows; the measure skips them."""
+    from wrenchd.models.series import JointStates
+    from wrenchd.service.replay.events_scored import SEAM_SKIP_S
+
+    t = np.arange(0, 200.0, 0.01)
+    zeros = np.zeros((len(t), 6))
+    force = np.where(t < 100, 1.0, 2.0)
+    for seam in (80.0, 170.0):
+        force[(t >= seam) & (t < seam + SEAM_SKIP_S)] = 20.0
+    wrench = zeros.copy()
+    wrench[:, 2] = force
+    meta = {"setup_changes": [{"id": "x", "t_s": 100.0}], "seams_s": [80.0, 100.0, 170.0]}
+    (c,) = setup_change_levels(t, wrench, np.arange(len(t)), Session(
+        JointStates(t, zeros, zeros, zeros), None, meta))
+    assert c["before_N"] == pytest.approx(1.0) and c["after_N"] == pytest.approx(2.0)
+    assert c["before_samples"] == 3000 - 100 and c["after_samples"] == 3000 - 100
+    # without the seams recorded, the spikes count
+    (raw,) = setup_change_levels(t, wrench, np.arange(len(t)), Session(
+        JointStates(t, zeros, zeros, zeros), None, {"setup_changes": meta["setup_changes"]}))
+    assert raw["before_N"] > 3.0
 
 
 def test_recovery_and_inspect_take_a_concat_of_recordings(bundle, wpi_data, tmp_path):
