@@ -2,11 +2,16 @@
 
 A network trained on a few excitation trajectories is only trustworthy near the joint states
 it was trained on; elsewhere its output is an extrapolation. :class:`Coverage` keeps the
-training samples' feature rows ``[q, dq]`` (every ``stride``-th, each feature scaled by its
-training standard deviation) and measures, for a new row, the Euclidean distance to the
+training samples' feature rows ``[q, dq]`` or ``[q, dq, ddq]`` (every ``stride``-th, each
+feature scaled by its training standard deviation; accelerations count
+``acceleration_weight`` as much, being noisier) and measures, for a new row, the Euclidean distance to the
 nearest of them in those normalised units. :meth:`Coverage.weight` turns the distance into a
 trust weight: 1 up to ``inner_distance``, 0 from ``outer_distance`` on, a smoothstep between,
 so a model that blends by this weight hands over without jumps.
+
+The accelerations matter where a network reads them: the same path at half the speed passes
+the same positions at velocities a network has seen elsewhere on the path, but at a quarter of
+the accelerations, which it has not.
 
 Scale of the distance: consecutive periods of one WPI excitation trajectory lie within about
 0.05 (median) to 0.4 (99th percentile) of each other; another trajectory lies 2 to 4 away.
@@ -25,6 +30,8 @@ from wrenchd.models.estimator.features import N_FEATURES
 
 #: Smallest feature scale (a joint that never moved in training).
 MIN_SCALE = 1e-6
+#: Row widths: ``[q, dq]`` and ``[q, dq, ddq]``.
+WIDTHS = (N_FEATURES, N_FEATURES + 6)
 
 
 class CoverageConfig(BaseModel):
@@ -37,6 +44,9 @@ class CoverageConfig(BaseModel):
     outer_distance: float = Field(default=1.0, gt=0.0,
                                   description="no trust from this normalised distance on")
     stride: int = Field(default=4, ge=1, description="keep every n-th training sample")
+    acceleration_weight: float = Field(
+        default=0.0, ge=0.0, description="weight of the accelerations in the distance; 0: the "
+                                         "distance in [q, dq] only")
 
     @model_validator(mode="after")
     def _ordered(self) -> CoverageConfig:
@@ -68,10 +78,11 @@ class Coverage:
         pts = np.asarray(self.points, dtype=np.float64)
         mean = np.asarray(self.mean, dtype=np.float64)
         scale = np.asarray(self.scale, dtype=np.float64)
-        if (pts.ndim != 2 or pts.shape[1] != N_FEATURES or len(pts) == 0
-                or mean.shape != (N_FEATURES,) or scale.shape != (N_FEATURES,)):
-            raise ConfigError(f"coverage needs (M >= 1, 12) points and (12,) mean and scale, "
-                              f"got {pts.shape}, {mean.shape}, {scale.shape}")
+        width = pts.shape[1] if pts.ndim == 2 else -1
+        if (width not in WIDTHS or len(pts) == 0
+                or mean.shape != (width,) or scale.shape != (width,)):
+            raise ConfigError(f"coverage needs (M >= 1, 12 or 18) points and a mean and scale "
+                              f"as wide, got {pts.shape}, {mean.shape}, {scale.shape}")
         if not (np.isfinite(pts).all() and np.isfinite(mean).all() and np.all(scale > 0)):
             raise ConfigError("coverage points, mean and scale must be finite, scale > 0")
         object.__setattr__(self, "points", pts)
@@ -82,28 +93,40 @@ class Coverage:
     @classmethod
     def fit(cls, features: Sequence[np.ndarray], config: CoverageConfig | None = None
             ) -> Coverage:
-        """Coverage of training segments' (T, 12) feature rows ``[q, dq]``."""
+        """Coverage of training segments' (T, 12) rows ``[q, dq]``, or (T, 18) rows
+        ``[q, dq, ddq]`` whose accelerations count ``config.acceleration_weight`` as much
+        (their scale is divided by it)."""
         config = config if config is not None else CoverageConfig()
         rows = [np.asarray(f, dtype=np.float64) for f in features]
-        if not rows or any(r.ndim != 2 or r.shape[1] != N_FEATURES for r in rows):
-            raise DataError("coverage needs (T, 12) feature rows")
+        if not rows or any(r.ndim != 2 or r.shape[1] != rows[0].shape[1] for r in rows) or \
+                rows[0].shape[1] not in WIDTHS:
+            raise DataError("coverage needs (T, 12) or (T, 18) feature rows")
         every = np.concatenate(rows)
         if len(every) == 0:
             raise DataError("coverage needs at least one training sample")
         mean, scale = every.mean(0), np.maximum(every.std(0), MIN_SCALE)
+        if every.shape[1] > N_FEATURES:
+            if not config.acceleration_weight > 0:
+                raise DataError("accelerations in the coverage need acceleration_weight > 0")
+            scale[N_FEATURES:] /= config.acceleration_weight
         kept = np.concatenate([r[::config.stride] for r in rows])
         return cls((kept - mean) / scale, mean, scale, config)
 
+    @property
+    def width(self) -> int:
+        """Columns of a row: 12 (``[q, dq]``) or 18 (``[q, dq, ddq]``)."""
+        return int(self.points.shape[1])
+
     def distance(self, features: np.ndarray) -> np.ndarray:
-        """Normalised distance (N,) of (N, 12) rows to the nearest training row."""
+        """Normalised distance (N,) of (N, :attr:`width`) rows to the nearest training row."""
         x = np.asarray(features, dtype=np.float64)
-        if x.ndim != 2 or x.shape[1] != N_FEATURES:
-            raise DataError(f"features must be (N, 12), got {x.shape}")
+        if x.ndim != 2 or x.shape[1] != self.width:
+            raise DataError(f"features must be (N, {self.width}), got {x.shape}")
         d, _ = self._tree.query((x - self.mean) / self.scale)
         return np.asarray(d, dtype=np.float64)
 
     def weight(self, features: np.ndarray) -> np.ndarray:
-        """Trust (N,) in [0, 1] of (N, 12) rows (see the module docstring)."""
+        """Trust (N,) in [0, 1] of (N, :attr:`width`) rows (see the module docstring)."""
         cfg = self.config
         d = self.distance(features)
         return smoothstep((cfg.outer_distance - d) / (cfg.outer_distance - cfg.inner_distance))

@@ -101,7 +101,9 @@ class HybridConfig(BaseModel):
     acceleration: CausalAccelerationConfig = Field(default_factory=CausalAccelerationConfig,
                                                    description="causal acceleration filter")
     residual: ResidualNetConfig = Field(default_factory=ResidualNetConfig)
-    coverage: CoverageConfig = Field(default_factory=CoverageConfig)
+    coverage: CoverageConfig = Field(
+        default_factory=lambda: CoverageConfig(acceleration_weight=0.5),
+        description="trust region; the residual net reads accelerations, so they count")
     max_gap_s: float = Field(default=0.05, gt=0.0, description="a longer step splits a series")
 
 
@@ -163,13 +165,22 @@ class HybridStep1:
         q, dq = x[:, :N_JOINTS], x[:, N_JOINTS:]
         phys = self.physics.predict(q, dq, acc, self._rigid, presliding)
         res = self.residual(np.concatenate([q, dq, acc], axis=1))
-        return HybridParts(phys, res, self.coverage.weight(x), acc)
+        rows = x if self.coverage.width == N_FEATURES else np.concatenate([x, acc], axis=1)
+        return HybridParts(phys, res, self.coverage.weight(rows), acc)
 
     def parts(self, features: np.ndarray) -> HybridParts:
         """Physics, residual, trust and acceleration of one gap-free segment of (T, 12) rows."""
         x = _rows(features)
         return self._combine(x, self.acceleration.estimate(x[:, N_JOINTS:]),
                              self.physics.presliding(x[:, :N_JOINTS], self.physics.config))
+
+    def coverage_distance(self, features: np.ndarray) -> np.ndarray:
+        """Normalised distance (T,) of one gap-free segment's rows to the training coverage
+        (with the causal acceleration where the coverage holds accelerations)."""
+        x = _rows(features)
+        if self.coverage.width > N_FEATURES:
+            x = np.concatenate([x, self.acceleration.estimate(x[:, N_JOINTS:])], axis=1)
+        return self.coverage.distance(x)
 
     def predict_sequence(self, features: np.ndarray) -> np.ndarray:
         """Torques (T, 6) of one gap-free segment of (T, 12) rows, from a fresh state."""
@@ -377,7 +388,9 @@ def fit_hybrid(series: Sequence[JointStates], config: HybridConfig | None = None
             "residual_train_seconds": round(time.perf_counter() - start, 1),
             "residual_final_loss": loss}
     return HybridStep1(config, physics, accel, net,
-                       Coverage.fit([x for x, _ in segs], config.coverage), info)
+                       Coverage.fit([np.concatenate([x, a], axis=1) if
+                                     config.coverage.acceleration_weight > 0 else x
+                                     for (x, _), a in zip(segs, acc)], config.coverage), info)
 
 
 def _presliding(segments_x: Sequence[np.ndarray], config: LeastSquaresConfig

@@ -447,7 +447,7 @@ def scores(trained: Trained, series: Sequence[JointStates]) -> dict[str, Any]:
             out[f"{key}_rmse"] = rmse(np.concatenate([p[key] for p in preds]), tau)
     if "_weight" in preds[0]:
         w = np.concatenate([p["_weight"] for p in preds])
-        d = np.concatenate([trained.hybrid.coverage.distance(features(s)) for s in series])
+        d = np.concatenate([trained.hybrid.coverage_distance(features(s)) for s in series])
         inside = w >= 1.0
         cov: dict[str, Any] = {"share_full": float(inside.mean()), "share_any": float((w > 0).mean()),
                                "distance_quantiles": dict(zip(

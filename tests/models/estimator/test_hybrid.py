@@ -65,7 +65,7 @@ def test_outside_the_coverage_physics_alone(trained):
     far = trajectory(4.0, phase=1.3, scale=0.5)           # other joint states entirely
     x = np.concatenate([far.position, far.velocity], 1)
     parts = trained.parts(x)
-    assert np.all(trained.coverage.distance(x) > trained.config.coverage.outer_distance)
+    assert np.all(trained.coverage_distance(x) > trained.config.coverage.outer_distance)
     assert parts.weight.max() == 0.0
     np.testing.assert_array_equal(parts.torque, parts.physics)
 
@@ -185,6 +185,23 @@ def test_coverage_weight():
     assert smoothstep(np.array([-1.0, 0.5, 2.0])).tolist() == [0.0, 0.5, 1.0]
     with pytest.raises(ValueError):
         CoverageConfig(inner_distance=1.0, outer_distance=0.5)
+
+
+def test_coverage_with_accelerations_weighs_them_and_keeps_old_rows():
+    """An 18-column coverage scales the accelerations' distance by the weight; a 12-column
+    one (as older hybrid files hold) still measures [q, dq] only."""
+    x = np.zeros((5, 18))
+    x[:, 12] = np.linspace(0.0, 4.0, 5)                  # one acceleration, std sqrt 2
+    cov = Coverage.fit([x], CoverageConfig(acceleration_weight=0.5, stride=1))
+    probe = np.zeros((1, 18))
+    probe[0, 12] = 4.0 + 2.0 * np.sqrt(2)
+    np.testing.assert_allclose(cov.distance(probe), [1.0], atol=1e-12)     # 2.0 * 0.5
+    assert cov.width == 18
+    with pytest.raises(DataError, match=r"\(N, 18\)"):
+        cov.distance(np.zeros((1, 12)))
+    with pytest.raises(DataError, match="acceleration_weight"):
+        Coverage.fit([x], CoverageConfig())
+    assert Coverage.fit([x[:, :12]], CoverageConfig()).width == 12
 
 
 def test_physics_is_the_least_squares_model(trained):

@@ -120,3 +120,22 @@ def test_known_load_specs_are_validated():
                        ("one.csv:heavy:outer_yaw:0,0,0", "must be numbers")):
         with pytest.raises(ConfigError, match=match):
             KnownLoad.parse(bad)
+
+
+def test_the_half_speed_run_is_outside_the_hybrids_coverage(wpi_data):
+    """The half-speed run passes trajectory one's positions at velocities the full-speed run
+    also has elsewhere on the path, but at a quarter of its accelerations: with accelerations
+    in the coverage (the default) its residual is not trusted there (without them it was on
+    about half the samples); the full-speed loaded run stays inside."""
+    from wrenchd.models.estimator.hybrid import HybridConfig, ResidualNetConfig, fit_hybrid
+    from wrenchd.service.studies.real_data import at_rate, features
+
+    hybrid = fit_hybrid([Source(str(wpi_data / "one_no_weight.csv")).load()],
+                        HybridConfig(residual=ResidualNetConfig(epochs=5)))
+    assert hybrid.coverage.width == 18
+    fast = Source(str(wpi_data / "one_205g_parallel.csv")).load()
+    slow = at_rate(Source(str(wpi_data / "one_slow_205g_parallel.csv")).load(),
+                   hybrid.acceleration.dt_s)
+    assert slow.rate_hz == pytest.approx(200.0)
+    assert hybrid.parts(features(fast)).weight.mean() > 0.8
+    assert (hybrid.parts(features(slow)).weight > 0).mean() < 0.05
