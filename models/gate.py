@@ -58,6 +58,22 @@ collapsing onto the noise of a perfectly adapted model. A gate stuck in contact 
 of the set-up (a new insufflation pressure) must not look like an endless contact; the pipeline
 reports it.
 
+A lasting change of the set-up (a load on a link, a heavier instrument) adds a torque that
+depends on the pose; a contact at the tip adds ``J^T f`` with a force ``f`` that changes with
+the tissue, not with the pose. Given the tip force estimate, a contact that has lasted
+``setup_contact_s`` is judged on the force implied at the tip over that time: a tip contact
+keeps its direction (``|mean f| / RMS |f|`` near 1), a set-up change seen through ``J^-T``
+swings with the pose (the ratio well under 1). Under ``steady_force_ratio`` the contact is
+taken for a set-up change: the gate re-learns its scale on the contact's residual and lets
+training resume after ``setup_probation_s`` (the new set-up is free motion to learn, not a
+contact to wait out); over it, the contact goes on and is judged again after as long
+again. Either re-learning (this one, or ``max_contact_s``'s) takes the scale from the
+contact's residual sampled every ``SETUP_STRIDE`` samples (the mean square of the samples
+within ``warmup_trim_sigma`` robust sigmas, so a spike at its start or a contact inside it
+does not widen the new scale), not from the present sample alone. The contact's samples are
+buffered every ``SETUP_STRIDE`` samples and judged once per ``setup_contact_s``: the hot path
+gains a counter and, now and then, one row written.
+
 The warm-up learns every sample: the pipeline's calibration guard judges them meanwhile, and a
 contact in the warm-up would otherwise be learnt as free motion, widening the scale several
 times for tens of seconds (and ``max_growth`` caps nothing then: the cap is set from the
@@ -137,6 +153,17 @@ class GateConfig(BaseModel):
         default=60.0, gt=0.0,
         description="a longer contact re-calibrates the gate [s]; for as long again after it, "
                     "nothing is trainable (the rest of a very long contact must not train)")
+    setup_contact_s: float = Field(
+        default=10.0, ge=0.0,
+        description="a contact this long is judged for a set-up change, on the tip force "
+                    "(given) over it, and again after as long again [s]; 0: never")
+    steady_force_ratio: float = Field(
+        default=0.8, gt=0.0, le=1.0,
+        description="a tip force whose |mean| / RMS over setup_contact_s is under this swings "
+                    "with the pose: a set-up change, its scale re-learnt")
+    setup_probation_s: float = Field(
+        default=2.0, ge=0.0,
+        description="nothing is trainable for this long after a set-up change re-learnt [s]")
     learn_sigma: float = Field(default=4.0, gt=0.0,
                                description="only samples scoring below this teach the scale")
     train_sigma: float = Field(default=2.0, gt=0.0,
@@ -195,6 +222,11 @@ def warmup_mean_square(residuals: np.ndarray, within_sigma: float) -> np.ndarray
     sigma = 1.4826 * np.median(np.abs(r), axis=0)
     keep = (np.abs(r) <= within_sigma * sigma).all(axis=1)
     return np.mean((r[keep] if keep.any() else r) ** 2, axis=0)
+
+
+#: a contact's residual and tip force are buffered every this many samples (the set-up check
+#: and the re-learnt scale read them), in a ring of ``SETUP_RING`` rows
+SETUP_STRIDE, SETUP_RING = 10, 1024
 
 
 #: pseudo-samples of spread 1 (the steady scale) a reversal bin starts with: a bin's first
@@ -273,8 +305,11 @@ class GateDecision(NamedTuple):
         score: peak score, largest per-joint |residual| / scale [scale units].
         contact_started: sample index where the current contact began (-1 when free; at the
             sample that ends a contact, still that contact's onset).
-        recalibrated: the gate re-calibrated at this sample (stuck in contact too long).
+        recalibrated: the gate re-calibrated at this sample (stuck in contact too long, or
+            a set-up change).
         trainable: free and quiet enough to train on.
+        setup_change: the contact ending at this sample was taken for a set-up change (the
+            tip force swung with the pose); ``recalibrated`` is set too.
     """
 
     free: bool
@@ -282,6 +317,7 @@ class GateDecision(NamedTuple):
     contact_started: int
     recalibrated: bool = False
     trainable: bool = False
+    setup_change: bool = False
 
 
 class FreeMotionGate:
@@ -345,6 +381,12 @@ class FreeMotionGate:
         self._contact_start = -1
         self._contact_t0 = 0.0
         self.contacts = 0
+        self.setup_changes = 0
+        # (SETUP_RING, 9): a contact's residual (6) and tip force (3) every SETUP_STRIDE samples
+        self._ring = np.zeros((SETUP_RING, N_JOINTS + 3))
+        self._ring_n = 0                       # rows written since the contact (or check) began
+        self._stride = 0
+        self._check_t = math.inf               # when the contact is judged for a set-up change
 
     def seed(self, std: np.ndarray) -> None:
         """Start from a known free-motion residual scale instead of warming up: a gate that
@@ -430,6 +472,44 @@ class FreeMotionGate:
         self._below_since = None
         self._above = self._joint_above = self._joint_held = 0
         self.contacts += 1
+        self._watch(t)
+
+    def _watch(self, t: float) -> None:
+        """Buffer a contact's samples afresh from ``t`` [s], to be judged for a set-up
+        change ``setup_contact_s`` later."""
+        self._ring_n = self._stride = 0
+        c = self.config.setup_contact_s
+        self._check_t = t + c if c > 0 else math.inf
+
+    def _buffered(self) -> np.ndarray:
+        """(n, 9) the buffered residuals (6) and tip forces (3) of the contact."""
+        return self._ring[:min(self._ring_n, SETUP_RING)]
+
+    def _swings_with_pose(self) -> bool:
+        """The buffered tip force changes direction with the pose (``|mean f| / RMS |f|``
+        under ``steady_force_ratio``), as a set-up change seen through ``J^-T`` does and a
+        contact at the tip does not; False without a tip force or with under 20 rows."""
+        f = self._buffered()[:, N_JOINTS:]
+        if len(f) < 20 or not np.isfinite(f).all():
+            return False
+        rms = math.sqrt(float(np.mean(np.sum(f * f, axis=1))))
+        return rms > 0.0 and float(np.linalg.norm(f.mean(axis=0))) < (
+            self.config.steady_force_ratio * rms)
+
+    def _relearn(self, r: list[float]) -> None:
+        """Restart the scale on the contact's buffered residuals (the mean square of those
+        within ``warmup_trim_sigma`` robust sigmas), on the present residual ``r`` (6,)
+        when fewer than ``N_JOINTS`` rows are buffered."""
+        rows = self._buffered()
+        msq = (warmup_mean_square(rows[:, :N_JOINTS], self.config.warmup_trim_sigma)
+               if len(rows) >= N_JOINTS else np.asarray(r) ** 2)
+        self._acc = [0.0] * N_JOINTS
+        self._n_acc = 0
+        for j in range(N_JOINTS):
+            rms = math.sqrt(float(msq[j]))
+            self._restart_scale(j, float(msq[j]),
+                                self.config.max_growth * max(rms, self._floor[j]))
+        self._refresh()
 
     def settle(self, t: float) -> None:
         """This gate starts judging at time ``t`` [s] (its warm-up is over, or it takes
@@ -506,9 +586,11 @@ class FreeMotionGate:
             self._flush()
 
     def update(self, index: int, t: float, residual: np.ndarray,
-               velocity: np.ndarray | None = None) -> GateDecision:
-        """Judge sample ``index`` at time ``t`` [s] with residual torques (6,) [N m; N]
-        and, for ``reversal_bins_s``, joint velocities (6,) [rad/s; m/s]."""
+               velocity: np.ndarray | None = None,
+               force: np.ndarray | None = None) -> GateDecision:
+        """Judge sample ``index`` at time ``t`` [s] with residual torques (6,) [N m; N],
+        for ``reversal_bins_s`` joint velocities (6,) [rad/s; m/s], and for the set-up
+        check (``setup_contact_s``) the tip force estimate (3,) [N]."""
         cfg = self.config
         r = residual.tolist() if isinstance(residual, np.ndarray) else [float(x) for x in residual]
         steady = [a * a * b for a, b in zip(r, self._inv_var)]   # squared scores z_j^2
@@ -544,6 +626,7 @@ class FreeMotionGate:
                 self._joint_held = self._joint_above
                 self._published = True
                 self.contacts += 1
+                self._watch(t)
             else:
                 if score < cfg.learn_sigma:
                     if motion is not None:
@@ -555,6 +638,13 @@ class FreeMotionGate:
                 return GateDecision(True, score, -1, trainable=(tr < cfg.train_sigma
                                                                 and t >= self._probation_until))
         # in contact
+        self._stride += 1
+        if self._stride >= SETUP_STRIDE:
+            self._stride = 0
+            row = self._ring[self._ring_n % SETUP_RING]
+            row[:N_JOINTS] = r
+            row[N_JOINTS:] = force[:3] if force is not None else math.nan
+            self._ring_n += 1
         self._joint_held = self._joint_held + 1 if joint > cfg.joint_exit_sigma else 0
         below = score < cfg.exit_sigma and self._joint_held < cfg.joint_samples
         if cfg.release_free:
@@ -579,18 +669,18 @@ class FreeMotionGate:
                 return GateDecision(cfg.release_free, score, start)
         else:
             self._below_since = None
-        if t - self._contact_t0 > cfg.max_contact_s:
-            self._acc = [0.0] * N_JOINTS
-            self._n_acc = 0
-            for j in range(N_JOINTS):                  # re-scale on the present level
-                self._restart_scale(j, r[j] * r[j],
-                                    cfg.max_growth * max(abs(r[j]), self._floor[j]))
-            self._refresh()
+        setup = t >= self._check_t and self._swings_with_pose()
+        if setup or t - self._contact_t0 > cfg.max_contact_s:
+            self._relearn(r)                           # re-scale on the contact's level
             self._in_contact, self._above, self._joint_above = False, 0, 0
-            self._probation_until = t + cfg.max_contact_s
+            self._probation_until = t + (cfg.setup_probation_s if setup else cfg.max_contact_s)
             start, self._contact_start = self._contact_start, -1
             self._published = False
-            return GateDecision(False, score, start, recalibrated=True)
+            self._check_t = math.inf
+            self.setup_changes += setup
+            return GateDecision(False, score, start, recalibrated=True, setup_change=setup)
+        if t >= self._check_t:                         # a steady force: judged again later
+            self._watch(t)
         # with release_free, a released contact is published free (never trainable)
         return GateDecision(cfg.release_free and not self._published, score,
                             self._contact_start)

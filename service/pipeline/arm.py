@@ -15,7 +15,9 @@ Per sample:
 3. **gate**: :class:`FreeMotionGate` on the residual torque; the flag goes with the estimate
    (a contact the gate has released is published free, but its samples stay out of training
    and drift until the contact ends; a contact the calibration guard is in when the gate
-   takes over goes on as the gate's).
+   takes over goes on as the gate's; a lasting contact whose tip force swings with the pose
+   is taken for a set-up change, ``gate_setup_change`` event, and adaptation gets eager as
+   after a drift).
    The first ``calibration_s`` of a session are the contact-free calibration of step 2 that
    the two-step paper assumes (the surgeon moves the instrument in the patient without
    touching tissue): the correction net trains eagerly;
@@ -238,7 +240,7 @@ class ArmPipeline:
         self.counters.estimated += 1
         warming = not self.gate.calibrated          # before this sample: its last warm-up one
         decision = self.gate.update(index, t, out.external_torque,   # is still a warm-up's
-                                    msg.velocity)
+                                    msg.velocity, out.wrench)
         calibrating = self._calibrating(t, events)  # (may reset the gate: warming from now)
         # a refusing guard goes on judging while the gate re-learns its bounds after the
         # calibration (its warm-up calls nothing free and would drop the delay line)
@@ -258,7 +260,15 @@ class ArmPipeline:
             # with it (fresh, it would need a run of samples to find it, and train on them)
             self.gate.take_over_contact(self.guard.gate.contact_start, t)
         self._was_guarded = guarded
-        if decision.recalibrated:
+        if decision.setup_change:
+            # the gate took a lasting contact for a set-up change: adapt eagerly, as after a
+            # drift (the drift detector, fed free samples only, saw none of it)
+            self._adapt_until = t + self.config.adaptation.eager_s
+            if self.backend is not None:
+                self.backend.drift(t)
+            events.append(Event(t, "gate_setup_change", {
+                "arm": self.arm, "setup_contact_s": self.config.gate.setup_contact_s}))
+        elif decision.recalibrated:
             events.append(Event(t, "gate_recalibrated", {"arm": self.arm,
                                                          "max_contact_s":
                                                          self.config.gate.max_contact_s}))

@@ -1,0 +1,98 @@
+"""The gate tells a lasting set-up change from a lasting contact at the tip by the tip force
+it implies: one that swings with the pose is re-learnt within ``setup_contact_s``, one that
+keeps its direction is never trained on; the scale a re-learning starts from is the
+contact's level, not one sample's."""
+
+import numpy as np
+
+from wrenchd.models.gate import FreeMotionGate, GateConfig
+
+RATE = 200.0
+N = 200 * 60                                   # a minute of samples
+CHANGE = 2000                                   # the load or the contact from 10 s on
+
+
+def pose(n: int) -> np.ndarray:
+    """(n,) yaw angle of a slow periodic motion [rad]."""
+    t = np.arange(n) / RATE
+    return 0.8 * np.sin(2 * np.pi * t / 6.5)
+
+
+def noise(n: int, seed: int = 0) -> np.ndarray:
+    return np.random.default_rng(seed).normal(0.0, 0.02, (n, 6)) * [1, 1, 5, 0.1, 0.1, 0.1]
+
+
+def lever(yaw: np.ndarray) -> np.ndarray:
+    """(n, 3, 2) how a world force in the horizontal plane loads yaw and pitch [m], a lever
+    of 0.2 m turned by the yaw (the tip force seen through J^T)."""
+    c, s = np.cos(yaw), np.sin(yaw)
+    return 0.2 * np.stack([np.stack([-s, c], -1), np.stack([c, s], -1),
+                           np.zeros((len(yaw), 2))], 1)
+
+
+def run(gate, residual, force):
+    return [gate.update(i, i / RATE, r, None, f) for i, (r, f) in
+            enumerate(zip(residual, force))]
+
+
+def session(load: str):
+    """Residuals and tip forces: free motion, then from CHANGE on either a weight on a link
+    (its torque on yaw and pitch a smooth function of the pose; the tip force J^-T of it
+    turns with the pose) or a steady 2 N push at the tip (of the same torque size)."""
+    yaw = pose(N)
+    r, f = noise(N), np.random.default_rng(1).normal(0.0, 0.1, (N, 3))
+    jac = lever(yaw)                                          # (n, 3, 2)
+    if load == "setup":                     # 2 N of weight on a link that turns against yaw
+        tau = np.einsum("nij,i->nj", lever(-yaw), [0.0, 2.0, 0.0])
+        push = np.linalg.solve(jac[:, :2, :].transpose(0, 2, 1), tau[..., None])[..., 0]
+        world = np.concatenate([push, np.zeros((N, 1))], 1)
+    else:
+        world = np.tile([2.0, 0.0, 0.0], (N, 1))
+        tau = np.einsum("nij,ni->nj", jac, world)
+    r[CHANGE:, :2] += tau[CHANGE:]
+    f[CHANGE:] += world[CHANGE:]
+    return r, f
+
+
+def test_a_load_that_follows_the_pose_is_re_learnt_and_trains_again():
+    cfg = GateConfig(warmup_samples=1000)
+    out = run(FreeMotionGate(cfg), *session("setup"))
+    k = next(i for i, d in enumerate(out) if d.setup_change)
+    assert out[k].recalibrated
+    assert CHANGE < k <= CHANGE + (cfg.setup_contact_s + 1.0) * RATE
+    probation = int(cfg.setup_probation_s * RATE)
+    assert not any(d.trainable for d in out[k:k + probation])
+    assert np.mean([d.trainable for d in out[k + probation:]]) > 0.5
+
+
+def test_a_steady_push_at_the_tip_of_the_same_size_is_never_trained_on():
+    cfg = GateConfig(warmup_samples=1000)               # max_contact_s (60 s) is not reached
+    out = run(FreeMotionGate(cfg), *session("push"))
+    assert not any(d.setup_change or d.recalibrated for d in out)
+    assert not any(d.trainable for d in out[CHANGE:])
+    assert np.mean([not d.free for d in out[CHANGE + 200:]]) > 0.95
+
+
+def test_without_a_tip_force_only_max_contact_s_ends_a_lasting_contact():
+    cfg = GateConfig(warmup_samples=1000, max_contact_s=30.0)
+    r, _ = session("setup")
+    out = [FreeMotionGate.update(g, i, i / RATE, x) for g in [FreeMotionGate(cfg)]
+           for i, x in enumerate(r)]
+    k = next(i for i, d in enumerate(out) if d.recalibrated)
+    assert not any(d.setup_change for d in out)
+    assert k > CHANGE + 29.0 * RATE
+
+
+def test_a_re_learnt_scale_is_the_contact_level_not_one_sample():
+    """After a lasting change the scale restarts on the RMS of the contact's residual (its
+    samples within the trim bound), on every joint, not on whatever the last sample was."""
+    cfg = GateConfig(warmup_samples=1000, max_contact_s=20.0, setup_contact_s=0.0)
+    r = 3.0 * noise(N, seed=3)                       # three times the floor on every joint
+    r[CHANGE:, 0] += 0.3
+    gate = FreeMotionGate(cfg)
+    for i, x in enumerate(r):
+        if gate.update(i, i / RATE, x).recalibrated:
+            break
+    assert CHANGE + 20.0 * RATE <= i <= CHANGE + 21.0 * RATE
+    level = np.sqrt(np.mean(r[CHANGE + 50:i] ** 2, axis=0))   # the contact's samples
+    np.testing.assert_allclose(gate.bounds()[1], level, rtol=0.15)
