@@ -8,6 +8,10 @@ force is zero except where contacts are injected):
    (:func:`wrenchd.service.studies.real_data.evaluate`).
 2. **Known loads**: the 105 g and 205 g parallelogram loads (full and half speed) at their
    photographed point, against the estimated external torques.
+   The served estimate is step 1 and the correction net together: ``concat:two.csv*N``
+   played through the pipeline (gated and frozen), its free-motion tip force after the
+   calibration minute, which fits the correction net on this session's free motion
+   (:func:`served_free_motion`).
 3. **A real set-up change**: a bundle fitted by ``wrenchd fit`` on ``one_no_weight.csv``
    serves ``concat:one_no_weight.csv*N,one_205g_parallel.csv*N`` under each adaptation
    policy (the load appears at the change of recording, unannounced); the free-motion tip
@@ -44,6 +48,7 @@ class RealRobotConfig:
 
     repeats: int = 6                   # each recording of the set-up change session
     inject_repeats: int = 4            # each recording of an injected session
+    served_repeats: int = 4            # two.csv played through the pipeline
     seeds: tuple[int, ...] = (3, 4, 5)
     policies: tuple[str, ...] = ("gated", "frozen", "ungated")
     models: tuple[str, ...] = ("lstm", "ls", "hybrid")
@@ -52,7 +57,7 @@ class RealRobotConfig:
 
     @classmethod
     def quick(cls) -> RealRobotConfig:
-        return cls(repeats=1, inject_repeats=1, seeds=(3,), policies=("gated", "frozen"),
+        return cls(repeats=1, inject_repeats=1, served_repeats=3, seeds=(3,), policies=("gated", "frozen"),
                    models=("ls", "hybrid"), hybrid_epochs=20, fit_epochs=20)
 
 
@@ -87,6 +92,41 @@ def fit_bundle(data: Path, out: Path, config: RealRobotConfig) -> dict[str, Any]
                           progress=lambda *_: None)
 
 
+def served_free_motion(spec: str, free_space, policies: Sequence[str]) -> list[dict[str, Any]]:
+    """The free-motion tip force [N] the pipeline publishes on ``spec`` (a session without
+    contact), over the calibration minute and after it, per policy; the second after each seam
+    of a ``concat:`` left out (:data:`~wrenchd.service.replay.events_scored.SEAM_SKIP_S`)."""
+    import numpy as np
+
+    from wrenchd.service.pipeline import PipelineConfig
+    from wrenchd.service.replay.events_scored import SEAM_SKIP_S
+    from wrenchd.service.replay.loop import replay
+    from wrenchd.service.replay.policies import get_policy
+    from wrenchd.service.replay.source import load_session
+
+    session = load_session(spec)
+    seams = np.asarray(session.metadata.get("seams_s", ()), dtype=np.float64)
+    out = []
+    for policy in policies:
+        config = get_policy(policy).configure(PipelineConfig())
+        r = replay(session, free_space, config, policy=policy)
+        force = np.linalg.norm(r.wrench[:, :3], axis=1)
+        t = r.t - r.t[0]
+        keep = np.ones(len(t), dtype=bool)
+        for seam in seams - r.t[0]:
+            keep &= ~((t >= seam) & (t < seam + SEAM_SKIP_S))
+        calibrated = t >= config.calibration_s
+        row: dict[str, Any] = {"session": spec, "policy": policy,
+                               "calibration_s": config.calibration_s}
+        for name, mask in (("calibration", keep & ~calibrated), ("after", keep & calibrated)):
+            f = force[mask]
+            row[name] = ({"rms": float(np.sqrt(np.mean(f ** 2))),
+                          "p95": float(np.quantile(f, 0.95)), "samples": int(mask.sum())}
+                         if f.size else None)
+        out.append(row)
+    return out
+
+
 def _rows(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
     """The figures of each compare row that the report shows."""
     keep = ("session", "policy", "samples", "wall_s", "setup_changes", "truth", "false_force_N",
@@ -119,6 +159,10 @@ def run(data: str | Path, out: str | Path, config: RealRobotConfig | None = None
     r["bundle"] = {"path": bundle.name, "held_out": fit.get("held_out"),
                    "digest": fit.get("bundle_digest")}
     free_space = load_free_space(str(bundle))
+    log("served pipeline on two.csv ...")
+    r["served"] = served_free_motion(
+        f"concat:{_path(data, 'two.csv')}*{config.served_repeats}", free_space, ("gated",
+                                                                                 "frozen"))
     change = (f"concat:{_path(data, 'one_no_weight.csv')}*{config.repeats},"
               f"{_path(data, 'one_205g_parallel.csv')}*{config.repeats}")
     log(f"set-up change: {', '.join(config.policies)} ...")

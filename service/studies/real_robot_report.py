@@ -25,6 +25,22 @@ def _name(spec: str) -> str:
     return ",".join(p.rsplit("/", 1)[-1] for p in spec.split(","))
 
 
+def served_section(rows: list[dict[str, Any]]) -> list[str]:
+    lines = ["## The served estimate on unseen motion: step 1 and the correction net\n",
+             (f"`{_name(rows[0]['session'])}` through the pipeline with the bundle: the "
+              f"calibration minute ({rows[0]['calibration_s']:.0f} s) fits the correction net "
+              "on this session's free motion (gated; frozen keeps step 1 alone). Free-motion "
+              "tip force [N], the second after each seam left out. The motion after the "
+              "calibration repeats the motion during it (the recording repeats every 6.5 s).\n"),
+             "| policy | calibration minute RMS | p95 | after it RMS | p95 |",
+             "| --- | --- | --- | --- | --- |"]
+    for r in rows:
+        c, a = r.get("calibration") or {}, r.get("after") or {}
+        lines.append(f"| {r['policy']} | {_f(c.get('rms'))} | {_f(c.get('p95'))} | "
+                     f"{_f(a.get('rms'))} | {_f(a.get('p95'))} |")
+    return lines + [""]
+
+
 def setup_change_section(rows: list[dict[str, Any]]) -> list[str]:
     lines = ["## A real set-up change: 205 g on the parallelogram, unannounced\n",
              ("`wrenchd compare` with the bundle fitted on `one_no_weight.csv`, on "
@@ -77,6 +93,8 @@ def markdown(r: dict[str, Any]) -> str:
               "last 20 % held out)" + (f"; held-out RMSE per joint, hybrid: "
                                       + ", ".join(f"{v:.3f}" for v in held["hybrid_rmse"])
                                       if "hybrid_rmse" in held else "") + ".\n"]
+    if r.get("served"):
+        lines += served_section(r["served"])
     lines += setup_change_section(r["setup_change"])
     lines += injected_section(r["injected"])
     return "\n".join(lines)

@@ -28,6 +28,10 @@ def test_the_real_robot_report_runs_end_to_end(wpi_data, tmp_path):
     # the full-speed loads, least squares on their photographed point (measured 94 g, 211 g)
     assert 0.085 < loads[0]["models"]["ls"]["fitted_mass_kg"] < 0.105
     assert 0.195 < loads[1]["models"]["ls"]["fitted_mass_kg"] < 0.225
+    # the served pipeline on two.csv: the correction net's calibration minute, then after it
+    gated, frozen = r["served"]
+    assert (gated["policy"], frozen["policy"]) == ("gated", "frozen")
+    assert gated["after"]["samples"] > 5000 and frozen["after"]["rms"] > 0.5
     policies = [row["policy"] for row in r["setup_change"]]
     assert policies == ["gated", "frozen"]
     for row in r["setup_change"]:
@@ -40,7 +44,7 @@ def test_the_real_robot_report_runs_end_to_end(wpi_data, tmp_path):
     assert injected["session"].startswith("inject:3:concat:")
     assert "contamination" in injected and "false_force_N" in injected
     text = (out / "report.md").read_text()
-    for title in ("Newtons at the tip", "Known loads", "A real set-up change",
+    for title in ("Newtons at the tip", "Known loads", "The served estimate", "A real set-up change",
                   "simulated trocar and contacts"):
         assert title in text
     assert (out / "bundle" / "manifest.json").is_file()
