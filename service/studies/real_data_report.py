@@ -178,10 +178,17 @@ def markdown(r: dict[str, Any], command: str) -> str:
                      "Savitzky-Golay acceleration (reads 50 ms ahead: offline only).")
     if "hybrid_info" in r:
         i = r["hybrid_info"]
-        lines.append(f"Hybrid: the improved LS columns on a causal acceleration (48-tap filter "
-                     f"fitted to the centred one), rank {i['physics_rank']}, plus a 2 x 128 tanh "
-                     f"residual net on [q, dq, acceleration] ({i['residual_train_seconds']} s), "
-                     "behind a nearest-neighbour trust gate in normalised (q, dq).")
+        cfg = r.get("hybrid_config", {})
+        widths = (cfg.get("physics") or {}).get("hysteresis_width")
+        weight = (cfg.get("coverage") or {}).get("acceleration_weight") or 0.0
+        lines.append(f"Hybrid: the improved LS columns"
+                     + (" and a presliding friction column per joint (play operator, widths "
+                        + ", ".join(f"{w:g}" for w in widths) + ")" if widths else "")
+                     + f" on a causal acceleration (48-tap filter fitted to the centred one), "
+                     f"rank {i['physics_rank']}, plus a 2 x 128 tanh residual net on [q, dq, "
+                     f"acceleration] ({i['residual_train_seconds']} s), behind a "
+                     "nearest-neighbour trust gate in normalised (q, dq"
+                     + (f", acceleration at weight {weight:g}" if weight else "") + ").")
     if r.get("lookahead_ms"):
         lines.append("Hybrid, N ms ahead (offline): the same hybrid fitted again with an "
                      "acceleration filter that reads N ms past the estimated sample; it cannot "
