@@ -67,7 +67,9 @@ swings with the pose (the ratio well under 1). Under ``steady_force_ratio`` the 
 taken for a set-up change: the gate re-learns its scale on the contact's residual and lets
 training resume after ``setup_probation_s`` (the new set-up is free motion to learn, not a
 contact to wait out); over it, the contact goes on and is judged again after as long
-again. Either re-learning (this one, or ``max_contact_s``'s) takes the scale from the
+again. Contacts that follow one another within ``setup_gap_s`` (a residual hovering about
+the exit bounds is ended and found again every few seconds) count as one lasting contact
+here. Either re-learning (this one, or ``max_contact_s``'s) takes the scale from the
 contact's residual sampled every ``SETUP_STRIDE`` samples (the mean square of the samples
 within ``warmup_trim_sigma`` robust sigmas, so a spike at its start or a contact inside it
 does not widen the new scale), not from the present sample alone. The contact's samples are
@@ -157,6 +159,11 @@ class GateConfig(BaseModel):
         default=10.0, ge=0.0,
         description="a contact this long is judged for a set-up change, on the tip force "
                     "(given) over it, and again after as long again [s]; 0: never")
+    setup_gap_s: float = Field(
+        default=0.5, ge=0.0,
+        description="contacts less than this apart (one's end to the next one's start) count "
+                    "as one for setup_contact_s [s]: a set-up change the gate keeps ending "
+                    "and finding again is one lasting contact")
     steady_force_ratio: float = Field(
         default=0.8, gt=0.0, le=1.0,
         description="a tip force whose |mean| / RMS over setup_contact_s is under this swings "
@@ -387,6 +394,7 @@ class FreeMotionGate:
         self._ring_n = 0                       # rows written since the contact (or check) began
         self._stride = 0
         self._check_t = math.inf               # when the contact is judged for a set-up change
+        self._ended_t = -math.inf              # when the last contact ended
 
     def seed(self, std: np.ndarray) -> None:
         """Start from a known free-motion residual scale instead of warming up: a gate that
@@ -474,9 +482,14 @@ class FreeMotionGate:
         self.contacts += 1
         self._watch(t)
 
-    def _watch(self, t: float) -> None:
+    def _watch(self, t: float, again: bool = False) -> None:
         """Buffer a contact's samples afresh from ``t`` [s], to be judged for a set-up
-        change ``setup_contact_s`` later."""
+        change ``setup_contact_s`` later; a contact that starts within ``setup_gap_s`` of
+        the last one's end goes on with its buffer and time (unless ``again``: a steady
+        force judged, the next window starts)."""
+        if (not again and t - self._ended_t <= self.config.setup_gap_s
+                and math.isfinite(self._check_t)):
+            return
         self._ring_n = self._stride = 0
         c = self.config.setup_contact_s
         self._check_t = t + c if c > 0 else math.inf
@@ -662,6 +675,7 @@ class FreeMotionGate:
             if t - self._below_since >= cfg.exit_s:
                 self._in_contact, self._above, self._joint_above = False, 0, 0
                 self._published = False
+                self._ended_t = t
                 start, self._contact_start = self._contact_start, -1
                 # the first free sample is not trusted: it is the contact's last, and says
                 # where that contact began (a -1 here would read as "onset unknown" and make
@@ -680,7 +694,7 @@ class FreeMotionGate:
             self.setup_changes += setup
             return GateDecision(False, score, start, recalibrated=True, setup_change=setup)
         if t >= self._check_t:                         # a steady force: judged again later
-            self._watch(t)
+            self._watch(t, again=True)
         # with release_free, a released contact is published free (never trainable)
         return GateDecision(cfg.release_free and not self._published, score,
                             self._contact_start)

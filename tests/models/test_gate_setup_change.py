@@ -96,3 +96,22 @@ def test_a_re_learnt_scale_is_the_contact_level_not_one_sample():
     assert CHANGE + 20.0 * RATE <= i <= CHANGE + 21.0 * RATE
     level = np.sqrt(np.mean(r[CHANGE + 50:i] ** 2, axis=0))   # the contact's samples
     np.testing.assert_allclose(gate.bounds()[1], level, rtol=0.15)
+
+
+def test_a_load_the_gate_keeps_ending_and_finding_again_counts_as_one_lasting_contact():
+    """A residual about the exit bounds ends the contact now and then (here the load is
+    off for 0.6 s every 3 s) and the next sample run over the enter bounds starts another:
+    contacts less than setup_gap_s apart are judged as one."""
+    r, f = session("setup")
+    off = (np.arange(N) - CHANGE) % 600 >= 480                  # 0.6 s of every 3 s
+    r[CHANGE:, :2] = np.where(off[CHANGE:, None], noise(N - CHANGE, seed=4)[:, :2],
+                              r[CHANGE:, :2])
+    f[CHANGE:] = np.where(off[CHANGE:, None], 0.0, f[CHANGE:])
+    chained = run(FreeMotionGate(GateConfig(warmup_samples=1000)), r, f)
+    assert sum(d.contact_started >= 0 and not out.contact_started >= 0
+               for out, d in zip(chained, chained[1:])) >= 2    # found again
+    k = next(i for i, d in enumerate(chained) if d.setup_change)
+    assert k <= CHANGE + 11.0 * RATE
+    # judged contact by contact, only a later one lasts setup_contact_s
+    apart = run(FreeMotionGate(GateConfig(warmup_samples=1000, setup_gap_s=0.0)), r, f)
+    assert next(i for i, d in enumerate(apart) if d.setup_change) > CHANGE + 11.0 * RATE
