@@ -102,7 +102,7 @@ class HybridConfig(BaseModel):
                                                    description="causal acceleration filter")
     residual: ResidualNetConfig = Field(default_factory=ResidualNetConfig)
     coverage: CoverageConfig = Field(
-        default_factory=lambda: CoverageConfig(acceleration_weight=0.5),
+        default_factory=lambda: CoverageConfig(acceleration_weight=0.3),
         description="trust region; the residual net reads accelerations, so they count")
     max_gap_s: float = Field(default=0.05, gt=0.0, description="a longer step splits a series")
 

@@ -29,9 +29,9 @@ def test_split_experiment_and_loads(wpi_data, tmp_path):
     test = r["test_file"]
     ls, hyb = np.array(test["ls_rmse"]), np.array(test["hybrid_rmse"])
     # The test window repeats the trained first 18 s: the residual applies almost everywhere
-    # (measured 98 %) and takes yaw and pitch far below least squares (measured with 200
-    # epochs: 0.51 and 0.31 of it).
-    assert test["coverage"]["share_full"] > 0.9
+    # (with some trust on every sample, full trust on 88 %) and takes yaw and pitch far below
+    # least squares.
+    assert test["coverage"]["share_any"] > 0.95 and test["coverage"]["share_full"] > 0.75
     assert np.all(hyb[:2] < 0.8 * ls[:2]), (hyb, ls)
     assert np.all(hyb < 1.02 * ls), (hyb, ls)
     # The same hybrid with an acceleration reading 25 ms ahead (offline) is a hybrid too.
@@ -126,7 +126,7 @@ def test_the_half_speed_run_is_outside_the_hybrids_coverage(wpi_data):
     """The half-speed run passes trajectory one's positions at velocities the full-speed run
     also has elsewhere on the path, but at a quarter of its accelerations: with accelerations
     in the coverage (the default) its residual is not trusted there (without them it was on
-    about half the samples); the full-speed loaded run stays inside."""
+    about half the samples, mean trust 0.14); the full-speed loaded run stays inside."""
     from wrenchd.models.estimator.hybrid import HybridConfig, ResidualNetConfig, fit_hybrid
     from wrenchd.service.studies.real_data import at_rate, features
 
@@ -138,4 +138,4 @@ def test_the_half_speed_run_is_outside_the_hybrids_coverage(wpi_data):
                    hybrid.acceleration.dt_s)
     assert slow.rate_hz == pytest.approx(200.0)
     assert hybrid.parts(features(fast)).weight.mean() > 0.8
-    assert (hybrid.parts(features(slow)).weight > 0).mean() < 0.05
+    assert hybrid.parts(features(slow)).weight.mean() < 0.06
