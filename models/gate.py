@@ -63,7 +63,10 @@ depends on the pose; a contact at the tip adds ``J^T f`` with a force ``f`` that
 the tissue, not with the pose. Given the tip force estimate, a contact that has lasted
 ``setup_contact_s`` is judged on the force implied at the tip over that time: a tip contact
 keeps its direction (``|mean f| / RMS |f|`` near 1), a set-up change seen through ``J^-T``
-swings with the pose (the ratio well under 1). Under ``steady_force_ratio`` the contact is
+swings with the pose (the ratio well under 1). Under ``steady_force_ratio``, and no larger
+than a load or an instrument changes the tip force by (``setup_max_force_n``: a grasp of
+several newtons is a contact whatever its direction does, and learning one silently is the
+costly mistake; a larger change is announced, or waits for ``max_contact_s``), the contact is
 taken for a set-up change: the gate re-learns its scale on the contact's residual and lets
 training resume after ``setup_probation_s`` (the new set-up is free motion to learn, not a
 contact to wait out); over it, the contact goes on and is judged again after as long
@@ -168,6 +171,11 @@ class GateConfig(BaseModel):
         default=0.8, gt=0.0, le=1.0,
         description="a tip force whose |mean| / RMS over setup_contact_s is under this swings "
                     "with the pose: a set-up change, its scale re-learnt")
+    setup_max_force_n: float = Field(
+        default=5.0, gt=0.0,
+        description="a lasting contact whose tip force RMS is over this is never taken for "
+                    "a set-up change [N] (a grasp of several N held for seconds is a contact "
+                    "whatever its direction does; a larger change must be announced)")
     setup_probation_s: float = Field(
         default=2.0, ge=0.0,
         description="nothing is trainable for this long after a set-up change re-learnt [s]")
@@ -498,16 +506,18 @@ class FreeMotionGate:
         """(n, 9) the buffered residuals (6) and tip forces (3) of the contact."""
         return self._ring[:min(self._ring_n, SETUP_RING)]
 
-    def _swings_with_pose(self) -> bool:
-        """The buffered tip force changes direction with the pose (``|mean f| / RMS |f|``
+    def _looks_like_setup(self) -> bool:
+        """The buffered tip force is no larger than a set-up change's (RMS up to
+        ``setup_max_force_n``) and changes direction with the pose (``|mean f| / RMS |f|``
         under ``steady_force_ratio``), as a set-up change seen through ``J^-T`` does and a
         contact at the tip does not; False without a tip force or with under 20 rows."""
         f = self._buffered()[:, N_JOINTS:]
         if len(f) < 20 or not np.isfinite(f).all():
             return False
+        c = self.config
         rms = math.sqrt(float(np.mean(np.sum(f * f, axis=1))))
-        return rms > 0.0 and float(np.linalg.norm(f.mean(axis=0))) < (
-            self.config.steady_force_ratio * rms)
+        return 0.0 < rms <= c.setup_max_force_n and float(np.linalg.norm(f.mean(axis=0))) < (
+            c.steady_force_ratio * rms)
 
     def _relearn(self, r: list[float]) -> None:
         """Restart the scale on the contact's buffered residuals (the mean square of those
@@ -683,7 +693,7 @@ class FreeMotionGate:
                 return GateDecision(cfg.release_free, score, start)
         else:
             self._below_since = None
-        setup = t >= self._check_t and self._swings_with_pose()
+        setup = t >= self._check_t and self._looks_like_setup()
         if setup or t - self._contact_t0 > cfg.max_contact_s:
             self._relearn(r)                           # re-scale on the contact's level
             self._in_contact, self._above, self._joint_above = False, 0, 0

@@ -115,3 +115,16 @@ def test_a_load_the_gate_keeps_ending_and_finding_again_counts_as_one_lasting_co
     # judged contact by contact, only a later one lasts setup_contact_s
     apart = run(FreeMotionGate(GateConfig(warmup_samples=1000, setup_gap_s=0.0)), r, f)
     assert next(i for i, d in enumerate(apart) if d.setup_change) > CHANGE + 11.0 * RATE
+
+
+def test_a_lasting_force_of_several_newtons_is_a_contact_whatever_its_direction_does():
+    """A grasp of several newtons held for seconds may swing with the pose too (a handle
+    pulled about); over setup_max_force_n it is never taken for a set-up change."""
+    r, f = session("setup")
+    r[CHANGE:, :2] = noise(N)[CHANGE:, :2] + 4.0 * (r[CHANGE:, :2] - noise(N)[CHANGE:, :2])
+    f[CHANGE:] *= 4.0                                         # 8 N of weight instead of 2 N
+    cfg = GateConfig(warmup_samples=1000)
+    out = run(FreeMotionGate(cfg), r, f)
+    assert np.sqrt(np.mean(np.sum(f[CHANGE:] ** 2, axis=1))) > cfg.setup_max_force_n
+    assert not any(d.setup_change for d in out)
+    assert not any(d.trainable for d in out[CHANGE:])
