@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from pathlib import Path
+import re
 from typing import Any
 
 from wrenchd.service.studies.real_data_report import known_loads_section, tip_force_section
@@ -22,7 +22,7 @@ def _get(d: dict[str, Any], *keys: str) -> Any:
 
 def _name(spec: str) -> str:
     """A session spec with its folders dropped, for tables."""
-    return ",".join(p.rsplit("/", 1)[-1] for p in spec.split(","))
+    return re.sub(r"[^,:*]*/", "", spec)
 
 
 def served_section(rows: list[dict[str, Any]]) -> list[str]:
