@@ -134,3 +134,39 @@ def point_load_torque(q: np.ndarray, link: str, point: np.ndarray, dt: float | N
             raise DataError("a point's acceleration needs at least 5 samples")
         force += savgol_filter(p, window, 3, deriv=2, delta=dt, axis=0)
     return np.einsum("nk,nkj->nj", force, point_jacobian(q, link, point))
+
+
+def parse_link_point(spec: str) -> tuple[str, np.ndarray]:
+    """``LINK:X,Y,Z`` -> (link, point [m]).
+
+    Raises:
+        DataError: an unknown link or not three finite numbers.
+    """
+    link, _, xyz = spec.rpartition(":")
+    if link not in LINKS:
+        raise DataError(f"{spec!r}: expected LINK:X,Y,Z with LINK one of {', '.join(LINKS)}")
+    try:
+        point = np.array([float(v) for v in xyz.split(",")])
+    except ValueError:
+        raise DataError(f"{spec!r}: X,Y,Z must be numbers [m]") from None
+    if point.shape != (3,) or not np.isfinite(point).all():
+        raise DataError(f"{spec!r}: expected three finite coordinates X,Y,Z [m]")
+    return link, point
+
+
+def fit_mass(per_kg: np.ndarray, external: np.ndarray) -> dict:
+    """The point mass [kg] that best explains ``external`` (N, 6) torques by ``per_kg`` (N, 6)
+    (:func:`point_load_torque`), least squares over the joints it acts on, its point held.
+
+    Returns:
+        ``mass_kg``, ``joints`` (1-based), ``rmse_before`` and ``rmse_after`` on them.
+    """
+    joints = np.flatnonzero(np.sqrt(np.mean(per_kg ** 2, axis=0)) > 1e-9)
+    if joints.size == 0:
+        raise DataError("a load at that point moves no joint's torque")
+    a, b = per_kg[:, joints].ravel(), external[:, joints].ravel()
+    mass = float(a @ b / (a @ a))
+    after = external[:, joints] - mass * per_kg[:, joints]
+    return {"mass_kg": mass, "joints": (joints + 1).tolist(),
+            "rmse_before": np.sqrt(np.mean(external[:, joints] ** 2, axis=0)).tolist(),
+            "rmse_after": np.sqrt(np.mean(after ** 2, axis=0)).tolist()}

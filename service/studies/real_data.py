@@ -274,11 +274,12 @@ def _rotated_gravity(degrees: float) -> np.ndarray:
     return Rotation.from_rotvec(np.deg2rad(degrees) * _yaw_axis()).apply(g)
 
 
-def fitted_mass(expected_per_kg: np.ndarray, external: np.ndarray, joints: np.ndarray) -> float:
-    """Least-squares mass [kg] with the point held: ``external ~ m * expected_per_kg`` over
-    ``joints``."""
-    a, b = expected_per_kg[:, joints].ravel(), external[:, joints].ravel()
-    return float(a @ b / (a @ a))
+def fitted_mass(expected_per_kg: np.ndarray, external: np.ndarray) -> float:
+    """Least-squares mass [kg] with the point held (:func:`~wrenchd.models.physics.point_load.
+    fit_mass`)."""
+    from wrenchd.models.physics.point_load import fit_mass
+
+    return fit_mass(expected_per_kg, external)["mass_kg"]
 
 
 def known_load_study(trained: Trained, loads: Sequence[KnownLoad]) -> list[dict[str, Any]]:
@@ -295,7 +296,6 @@ def known_load_study(trained: Trained, loads: Sequence[KnownLoad]) -> list[dict[
         point = np.asarray(load.point)
         per_kg = point_load_torque(js.position, load.link, point, dt)
         static_per_kg = point_load_torque(js.position, load.link, point)
-        # The joints the load can act on: those whose torque it changes.
         joints = np.flatnonzero(np.sqrt(np.mean(per_kg ** 2, axis=0)) > 1e-9)
         expected = load.mass_kg * per_kg
         rec: dict[str, Any] = {
@@ -309,15 +309,15 @@ def known_load_study(trained: Trained, loads: Sequence[KnownLoad]) -> list[dict[
             if key.startswith("_"):
                 continue
             external = js.effort - pred
-            m = fitted_mass(per_kg, external, joints)
+            m = fitted_mass(per_kg, external)
             force = tip_forces(js.position, external - expected)
             rec["models"][key] = {
                 "fitted_mass_kg": m,
-                "fitted_mass_static_kg": fitted_mass(static_per_kg, external, joints),
+                "fitted_mass_static_kg": fitted_mass(static_per_kg, external),
                 "fitted_mass_gravity_rotated_kg": {
                     f"{deg:+g}": fitted_mass(point_load_torque(
                         js.position, load.link, point, dt, _rotated_gravity(deg)),
-                        external, joints) for deg in GRAVITY_TILTS_DEG},
+                        external) for deg in GRAVITY_TILTS_DEG},
                 "torque_rmse": rmse(external, expected),
                 "force_error_N": _force_stats(force)}
         served = rec["models"].get("hybrid") or next(iter(rec["models"].values()))

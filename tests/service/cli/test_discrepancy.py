@@ -73,6 +73,39 @@ def test_hidden_payload_in_an_mcap_session_and_bad_input(tmp_path):
     assert bad.returncode == 2 and "cannot read physics model" in bad.stderr
 
 
+def test_a_payload_at_a_given_point_gets_its_absolute_mass(tmp_path):
+    """A hidden 150 g on the pitch link at a known point: ``--payload-at`` with that point
+    gives its mass (the residual is the payload's torque plus the simulator's noise); a bad
+    point is refused before any work."""
+    given = tmp_path / "given.json"
+    given.write_text(json.dumps({"effects": [{"name": "coulomb_friction"},
+                                             {"name": "viscous_friction"}]}))
+    truth = tmp_path / "truth.json"
+    truth.write_text(json.dumps({"effects": [
+        {"name": "coulomb_friction"}, {"name": "viscous_friction"},
+        {"name": "payload_mass", "params": {"mass_kg": 0.15, "link": 2,
+                                            "position_m": [0.0, 0.065, 0.165]}}]}))
+    session = tmp_path / "s.mcap"
+    wrenchd("simulate", "--scenario", "free-space", "--duration", "12", "--seed", "4",
+            "--model", str(truth), "-o", str(session))
+    out = tmp_path / "out.json"
+    proc = wrenchd("discrepancy", "--model", str(given), "--measured", str(session),
+                   "--report", str(tmp_path / "r"), "--json", str(out),
+                   "--payload-at", "outer_pitch:0,0.065,0.165",
+                   "--payload-at", "outer_pitch:0.1,0,0")
+    right, wrong = json.loads(out.read_text())["payload_at"]
+    assert right["mass_kg"] == pytest.approx(0.15, rel=0.05), proc.stdout
+    assert right["joints"] == [1, 2]
+    assert all(a < 0.5 * b for a, b in zip(right["rmse_after"], right["rmse_before"]))
+    # a point elsewhere on the link explains almost nothing of it
+    assert wrong["rmse_after"][0] > 0.9 * wrong["rmse_before"][0]
+    assert "Payloads at given points" in (tmp_path / "r" / "report.md").read_text()
+    bad = wrenchd("discrepancy", "--model", str(given), "--measured", str(session),
+                  "--report", str(tmp_path / "r2"), "--json", str(tmp_path / "o2.json"),
+                  "--payload-at", "forearm:0,0,0", check=False)
+    assert bad.returncode == 2 and "forearm" in bad.stderr and not (tmp_path / "r2").exists()
+
+
 def _strict(text: str):
     """JSON as any strict parser reads it: NaN and Infinity refused."""
     def refuse(name):
