@@ -40,6 +40,17 @@ def _rms(x: np.ndarray) -> float | None:
     return float(np.sqrt(np.mean(x ** 2))) if x.size else None
 
 
+def after_seam(t: np.ndarray, session: Session) -> np.ndarray:
+    """(N,) True where a sample time ``t`` [s] lies within ``SEAM_SKIP_S`` after a seam of
+    recordings (``session.metadata["seams_s"]``, ascending)."""
+    t = np.asarray(t, dtype=np.float64)
+    seams = np.asarray((session.metadata or {}).get("seams_s", ()), dtype=np.float64)
+    if not seams.size:
+        return np.zeros(len(t), dtype=bool)
+    i = np.searchsorted(seams, t, side="right") - 1
+    return (i >= 0) & (t - seams[np.clip(i, 0, None)] < SEAM_SKIP_S)
+
+
 def setup_change_levels(t: np.ndarray, wrench: np.ndarray, sample: np.ndarray,
                         session: Session) -> list[dict[str, Any]]:
     """The free-motion tip force around each set-up change (see the module docstring).
@@ -58,11 +69,7 @@ def setup_change_levels(t: np.ndarray, wrench: np.ndarray, sample: np.ndarray,
     truth = session.truth
     free = (~truth.in_contact[sample] if truth is not None
             else np.ones(len(t), dtype=bool))
-    seams = np.asarray((session.metadata or {}).get("seams_s", ()), dtype=np.float64)
-    if seams.size:
-        i = np.searchsorted(seams, t, side="right") - 1
-        joined = (i >= 0) & (t - seams[np.clip(i, 0, None)] < SEAM_SKIP_S)
-        free = free & ~joined
+    free = free & ~after_seam(t, session)
     out = []
     for name, at, _ in drift_onsets(session):
         before = free & (t >= at - BEFORE_S) & (t < at)

@@ -196,10 +196,9 @@ def tip_forces(q: np.ndarray, external: np.ndarray) -> np.ndarray:
     return WrenchMap().wrench_batch(q, external)[:, :3]
 
 
-def tip_force_table(trained: Trained, js: JointStates, preds: dict[str, np.ndarray] | None = None
-                    ) -> dict[str, dict[str, float]]:
+def tip_force_table(trained: Trained, js: JointStates) -> dict[str, dict[str, float]]:
     """``{model: {rms, p95, rms_xyz}}`` [N] of the free-motion tip force on one series."""
-    preds = trained.predict(js) if preds is None else preds
+    preds = trained.predict(js)
     out = {"measured_cf": _force_stats(tip_forces(js.position, js.effort))}
     if "ls" in trained.models:
         zeros = np.zeros_like(js.velocity)
@@ -304,24 +303,24 @@ def known_load_study(trained: Trained, loads: Sequence[KnownLoad]) -> list[dict[
             "point_m": list(load.point), "joints": (joints + 1).tolist(),
             "gravity_mps2": list(_rotated_gravity(0.0)),
             "expected_rms": np.sqrt(np.mean(expected ** 2, axis=0)).tolist(), "models": {}}
-        preds = trained.predict(js)
-        for key, pred in preds.items():
+        # the same load under gravity turned about the yaw axis: one per tilt, every model
+        tilted = {f"{deg:+g}": point_load_torque(js.position, load.link, point, dt,
+                                                 _rotated_gravity(deg))
+                  for deg in GRAVITY_TILTS_DEG}
+        for key, pred in trained.predict(js).items():
             if key.startswith("_"):
                 continue
             external = js.effort - pred
-            m = fitted_mass(per_kg, external)
             force = tip_forces(js.position, external - expected)
             rec["models"][key] = {
-                "fitted_mass_kg": m,
+                "fitted_mass_kg": fitted_mass(per_kg, external),
                 "fitted_mass_static_kg": fitted_mass(static_per_kg, external),
                 "fitted_mass_gravity_rotated_kg": {
-                    f"{deg:+g}": fitted_mass(point_load_torque(
-                        js.position, load.link, point, dt, _rotated_gravity(deg)),
-                        external) for deg in GRAVITY_TILTS_DEG},
+                    tilt: fitted_mass(torque, external) for tilt, torque in tilted.items()},
                 "torque_rmse": rmse(external, expected),
                 "force_error_N": _force_stats(force)}
-        served = rec["models"].get("hybrid") or next(iter(rec["models"].values()))
         rec["served"] = "hybrid" if "hybrid" in rec["models"] else next(iter(rec["models"]))
+        served = rec["models"][rec["served"]]
         rec["fitted_mass_kg"] = served["fitted_mass_kg"]
         rec["mass_error"] = served["fitted_mass_kg"] / load.mass_kg - 1.0
         rec["torque_rmse"] = served["torque_rmse"]

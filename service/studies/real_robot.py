@@ -99,23 +99,19 @@ def served_free_motion(spec: str, free_space, policies: Sequence[str]) -> list[d
     import numpy as np
 
     from wrenchd.service.pipeline import PipelineConfig
-    from wrenchd.service.replay.events_scored import SEAM_SKIP_S
+    from wrenchd.service.replay.events_scored import after_seam
     from wrenchd.service.replay.loop import replay
     from wrenchd.service.replay.policies import get_policy
     from wrenchd.service.replay.source import load_session
 
     session = load_session(spec)
-    seams = np.asarray(session.metadata.get("seams_s", ()), dtype=np.float64)
     out = []
     for policy in policies:
         config = get_policy(policy).configure(PipelineConfig())
         r = replay(session, free_space, config, policy=policy)
         force = np.linalg.norm(r.wrench[:, :3], axis=1)
-        t = r.t - r.t[0]
-        keep = np.ones(len(t), dtype=bool)
-        for seam in seams - r.t[0]:
-            keep &= ~((t >= seam) & (t < seam + SEAM_SKIP_S))
-        calibrated = t >= config.calibration_s
+        keep = ~after_seam(r.t, session)
+        calibrated = r.t - r.t[0] >= config.calibration_s
         row: dict[str, Any] = {"session": spec, "policy": policy,
                                "calibration_s": config.calibration_s}
         for name, mask in (("calibration", keep & ~calibrated), ("after", keep & calibrated)):
