@@ -3,6 +3,7 @@ score, recalibration, the block-fed scale."""
 
 import numpy as np
 import pytest
+from pydantic import ValidationError
 
 from wrenchd.models.errors import DataError
 from wrenchd.models.gate import FreeMotionGate, GateConfig, warmup_mean_square
@@ -183,13 +184,13 @@ def test_a_lasting_change_recalibrates_instead_of_an_endless_contact():
     assert np.mean([d.free for d in out[-1000:]]) > 0.9
 
 
-def test_bad_configuration_is_refused():
-    with pytest.raises(DataError):
-        FreeMotionGate(GateConfig(enter_sigma=2.0, exit_sigma=3.0))
-    with pytest.raises(DataError):
-        FreeMotionGate(GateConfig(joint_sigma=1.0, joint_exit_sigma=1.5))
-    with pytest.raises(DataError):
-        FreeMotionGate(GateConfig(min_std=(0.1,) * 5))
+def test_bad_configuration_is_refused_when_loaded():
+    with pytest.raises(ValidationError, match="exit bound"):
+        GateConfig(enter_sigma=2.0, exit_sigma=3.0)
+    with pytest.raises(ValidationError, match="exit bound"):
+        GateConfig(joint_sigma=1.0, joint_exit_sigma=1.5)
+    with pytest.raises(ValidationError, match="min_std"):
+        GateConfig.model_validate({"min_std": [0.1] * 5})
 
 
 def test_the_block_fed_scale_is_the_per_sample_exponential_rms():

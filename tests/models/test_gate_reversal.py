@@ -3,8 +3,8 @@ as free motion's, a contact between reversals is still found."""
 
 import numpy as np
 import pytest
+from pydantic import ValidationError
 
-from wrenchd.models.errors import DataError
 from wrenchd.models.gate import FreeMotionGate, GateConfig, ReversalSpread
 
 RATE = 200.0
@@ -77,8 +77,8 @@ def test_the_spread_stays_within_its_bounds_and_a_slow_joint_is_reversing():
 
 
 def test_bad_reversal_settings_are_refused():
-    with pytest.raises(DataError):
-        FreeMotionGate(GateConfig(reversal_bins_s=(0.1, 0.05)))
-    with pytest.raises(DataError):
-        FreeMotionGate(GateConfig(slow_velocity=(0.01,) * 5))
+    with pytest.raises(ValidationError, match="increasing"):
+        GateConfig(reversal_bins_s=(0.1, 0.05))
+    with pytest.raises(ValidationError, match="slow_velocity"):
+        GateConfig(slow_velocity=(0.01,) * 5)
     assert FreeMotionGate(GateConfig(reversal_bins_s=())).reversal is None
