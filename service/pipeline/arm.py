@@ -1,38 +1,24 @@
-"""One arm's per-sample pipeline: validate -> estimate -> wrench -> gate -> train offer.
+"""One arm's per-sample pipeline: validate, estimate, gate, offer to training, swap models.
 
-The daemon and replay drive the very same :class:`ArmPipeline`; neither publishing nor
-logging happens here (the caller does that with what :meth:`ArmPipeline.process` returns), and
-adaptation is behind a small :class:`AdaptationBackend` interface: inline in simulated time
-for replay (deterministic), a worker process for the daemon.
+The daemon and replay drive the very same :class:`ArmPipeline`; publishing and logging are
+the caller's (with what :meth:`ArmPipeline.process` returns), adaptation is behind
+:class:`AdaptationBackend` (inline in simulated time for replay, a worker for the daemon).
+Per sample, in :meth:`ArmPipeline._after`'s order:
 
-Per sample:
-
-1. **validate**: decoded message, six joints, finite, magnitudes within ``ValidationConfig``
-   bounds, time strictly increasing. A bad sample becomes an ``error`` event and a counter;
-   it never reaches the estimator or the training data. A gap longer than the estimator's
-   ``max_gap_s`` restarts the LSTM state (``gap`` event).
-2. **estimate**: :class:`TwoStepEstimator.step_one` (step 1 + ``Corr`` + damped ``J^-T``).
-3. **gate**: :class:`FreeMotionGate` on the residual torque; the flag goes with the estimate
-   (a contact the gate has released is published free, but its samples stay out of training
-   and drift until the contact ends; a contact the calibration guard is in when the gate
-   takes over goes on as the gate's; a lasting contact whose tip force swings with the pose
-   is taken for a set-up change, ``gate_setup_change`` event, and adaptation gets eager as
-   after a drift).
-   The first ``calibration_s`` of a session are the contact-free calibration of step 2 that
-   the two-step paper assumes (the surgeon moves the instrument in the patient without
-   touching tissue): the correction net trains eagerly;
-   at its end the gate re-learns its bounds on the calibrated residual (``calibrated`` event).
-   The contact-free assumption is checked, not trusted, by the calibration guard
-   (:mod:`wrenchd.service.pipeline.calibration`): by default what it calls contact does not
-   train, it goes on judging through the gate's warm-up after the calibration, and it says
-   when the step-1 model does not fit the arm (``model_mismatch`` event, status).
-4. **train offer** (the policy, :class:`PolicyConfig`): with the ``gated`` policy a free
-   sample waits ``release_delay_s`` in a delay line and reaches the adaptation only if no
-   contact began meanwhile (a contact's onset, still under the gate's bound, is dropped with
-   the rest of the line). ``ungated`` offers every sample at once, ``frozen`` none.
-5. **drift**: free samples feed :class:`ResidualDriftDetector`; a detection is an event and
-   makes the adaptation eager.
-6. **model swap**: accepted rounds from the backend replace the ``Corr`` between two samples.
+1. **admit**: a decoded message with six finite joints within ``ValidationConfig``, time
+   increasing; a bad sample is an ``error`` event and a counter, never estimated or trained
+   on. A gap over ``max_gap_s`` restarts the estimator's state (``gap`` event).
+2. **estimate**: :class:`TwoStepEstimator` (step 1, ``Corr``, damped ``J^-T``).
+3. **gate**: :class:`FreeMotionGate` on the residual; during the calibration (the paper's
+   contact-free first ``calibration_s``) the verdicts are the calibration guard's
+   (:class:`~wrenchd.service.pipeline.calibration.CalibrationPhase`); a lasting contact whose
+   tip force swings with the pose is a set-up change (``gate_setup_change``).
+4. **drift**: free samples feed :class:`ResidualDriftDetector`; a detection makes the
+   adaptation eager (``drift``).
+5. **offer**: the policy's :class:`~wrenchd.service.pipeline.mechanisms.Mechanism`: gated, a
+   free sample waits ``release_delay_s`` in the delay line and is dropped if a contact began
+   meanwhile; ungated, every sample at once; frozen, none.
+6. **swap**: accepted rounds replace the ``Corr`` between two samples.
 """
 
 from __future__ import annotations
@@ -50,10 +36,11 @@ from wrenchd.models.estimator.estimator import TwoStepEstimator
 from wrenchd.models.estimator.free_space import FreeSpaceModel
 from wrenchd.models.gate import FreeMotionGate, GateDecision
 from wrenchd.models.series import N_JOINTS, JointSample
-from wrenchd.service.pipeline.calibration import CalibrationGuard
+from wrenchd.service.pipeline.calibration import CalibrationPhase
 from wrenchd.service.pipeline.adaptation import AdaptationBackend, InlineAdaptation, initial_corr
 from wrenchd.service.pipeline.config import PipelineConfig
 from wrenchd.service.pipeline.delay_line import DelayLine, Released, offer_rows
+from wrenchd.service.pipeline.mechanisms import mechanism
 from wrenchd.service.pipeline.records import Counters, Estimate, Event
 from wrenchd.service.pipeline.validation import SampleValidator
 from wrenchd.models.adaptation import RoundResult
@@ -74,30 +61,24 @@ class ArmPipeline:
         self.arm = arm
         self.config = c = config if config is not None else PipelineConfig()
         self.policy = c.policy.name
+        self.mechanism = mechanism(c.policy.name)
         self.estimator = TwoStepEstimator(free_space, initial_corr(c.adaptation), c.estimator)
         self.gate = FreeMotionGate(c.gate)
-        self.guard = CalibrationGuard.build(c, free_space)
-        self._guard_refuses = self.guard is not None and self.guard.refuses
+        self.counters = Counters()
+        self.calibration = CalibrationPhase(arm, c, free_space, self.gate, self.counters)
         self.drift = ResidualDriftDetector(np.asarray(c.gate.min_std), c.drift)
-        adapt = c.adaptation.enabled and self.policy != "frozen"
+        adapt = c.adaptation.enabled and self.mechanism.adapts
         self.backend = (backend if backend is not None else InlineAdaptation(
             c.adaptation, normalisation_of(free_space))) if adapt else None
         self.on_offer = None      # optional hook: called with the times [s] of offered samples
-        self.counters = Counters()
         self.model_version = 0
         self.model_validation: float | None = None
         self._last_ns: int | None = None
         self._behind = 0                      # consecutive samples stamped before the last
         self.line = DelayLine(c.policy)
         self.validator = SampleValidator(c.validation)
-        self._adapt_until = -np.inf           # drift-triggered: adapt only after a drift
-        self._next_reset: float | None = None
-        self._calibration_end: float | None = None
+        self._adapt_until = -np.inf           # eager (and drift-triggered offers) until then
         self._was_contact = False
-        self._was_guarded = False             # the last sample was the guard's to judge
-        self._mismatch_said = False           # the model_mismatch event of this calibration
-        self._prior_sq = np.zeros(N_JOINTS)   # summed squared residual of the guard's free
-        self._prior_n = 0                     # samples late in the calibration (gate's prior)
         self._last_setup: dict[str, Any] | None = None
         self.body_wall: list[float | None] = []    # stiffness per segment, the last round's
 
@@ -241,48 +222,16 @@ class ArmPipeline:
         warming = not self.gate.calibrated          # before this sample: its last warm-up one
         decision = self.gate.update(index, t, out.external_torque,   # is still a warm-up's
                                     msg.velocity, out.wrench)
-        calibrating = self._calibrating(t, events)  # (may reset the gate: warming from now)
-        # a refusing guard goes on judging while the gate re-learns its bounds after the
-        # calibration (its warm-up calls nothing free and would drop the delay line)
-        guarded = calibrating or (self._guard_refuses
-                                  and (warming or not self.gate.calibrated))
-        if guarded:
-            decision = self._guard_decision(index, t, out, msg.effort, events, calibrating,
-                                            decision.score)
-            if warming and self.gate.calibrated and not calibrating:
-                # the hand-over to the gate: a contact too weak for the guard may be in
-                # progress (the gate's settle keeps the next exit_s out of training); the
-                # samples waiting in the delay line, judged by the guard alone, go as well
-                self.counters.discarded_onsets += self.line.drop_onset(-1)
-                decision = decision._replace(trainable=False)
-        elif self._was_guarded and self._guard_refuses and self.guard.gate.in_contact:
-            # the gate takes over from the guard in the middle of a contact: it goes on
-            # with it (fresh, it would need a run of samples to find it, and train on them)
-            self.gate.take_over_contact(self.guard.gate.contact_start, t)
-        self._was_guarded = guarded
-        if decision.setup_change:
-            # the gate took a lasting contact for a set-up change: adapt eagerly, as after a
-            # drift (the drift detector, fed free samples only, saw none of it)
-            self._adapt_until = t + self.config.adaptation.eager_s
-            if self.backend is not None:
-                self.backend.drift(t)
-            events.append(Event(t, "gate_setup_change", {
-                "arm": self.arm, "setup_contact_s": self.config.gate.setup_contact_s}))
-        elif decision.recalibrated:
-            events.append(Event(t, "gate_recalibrated", {"arm": self.arm,
-                                                         "max_contact_s":
-                                                         self.config.gate.max_contact_s}))
+        decision, calibrating, guarded = self.calibration.overrule(
+            index, t, out, msg.effort, decision, warming, events, self.backend,
+            self.model_version, self.line)
+        self._gate_events(t, decision, events)
         self._contact_events(t, events)
         # a released contact (the gate's release_free) is published free, but for drift and
         # training it is still the contact's: only a sample of no contact is free there
         free = decision.free and decision.contact_started < 0
-        if free and not guarded and self.drift.update(t, out.external_torque):
-            self.counters.drifts += 1
-            self._adapt_until = t + self.config.adaptation.eager_s
-            events.append(Event(t, "drift", {"arm": self.arm,
-                                             "level": self.drift.level(out.external_torque)}))
-            if self.backend is not None:
-                self.backend.drift(t)
+        if free and not guarded:
+            self._drift(t, out.external_torque, events)
         self._offer(t, out, msg.effort, free, events, calibrating, decision.trainable,
                     decision.contact_started)
         est = Estimate(index, msg.stamp_ns, t, msg.position, msg.velocity, msg.effort,
@@ -290,96 +239,47 @@ class ArmPipeline:
                        decision.score, self.model_version, out.restarted)
         return est, events
 
-    def _guard_decision(self, index: int, t: float, out, effort: np.ndarray,
-                        events: list[Event], calibrating: bool, score: float) -> GateDecision:
-        """The verdict of the calibration guard (free unless there is no guard) on a sample
-        of the calibration (counted) or of the gate's warm-up after it, with the gate's
-        ``score``; the first time in a calibration that the guard finds the step-1 model does
-        not fit, a ``model_mismatch`` event."""
-        if calibrating:
-            self.counters.calibration_samples += 1
-        guard = self.guard
-        if guard is None:
-            return GateDecision(True, score, -1, trainable=True)
-        decision = guard.judge(index, t, effort - out.step1_torque)._replace(score=score)
-        if calibrating and not guard.last_free:
-            self.counters.calibration_contact += 1
-        elif calibrating and (t >= self._calibration_end
-                              - self.config.calibration_guard.gate_prior_s):
-            self._prior_sq += out.external_torque * out.external_torque
-            self._prior_n += 1
-        if guard.mismatch and not self._mismatch_said:
-            self._mismatch_said = True
-            ratios = guard.ratios
-            events.append(Event(t, "model_mismatch", {
-                "arm": self.arm, "fit_ratio": float(ratios.max()),
-                "joint": int(np.argmax(ratios)), "fit_ratios": ratios.tolist(),
-                "threshold": self.config.calibration_guard.mismatch_ratio}))
-        return decision
+    def _gate_events(self, t: float, decision: GateDecision, events: list[Event]) -> None:
+        """A set-up change the gate found (adaptation gets eager, as after a drift: the drift
+        detector, fed free samples only, saw none of it) or a re-calibration, as events."""
+        if decision.setup_change:
+            self._eager(t)
+            events.append(Event(t, "gate_setup_change", {
+                "arm": self.arm, "setup_contact_s": self.config.gate.setup_contact_s}))
+        elif decision.recalibrated:
+            events.append(Event(t, "gate_recalibrated", {
+                "arm": self.arm, "max_contact_s": self.config.gate.max_contact_s}))
 
-    def _calibrating(self, t: float, events: list[Event]) -> bool:
-        if self._calibration_end is None:
-            self._calibration_end = t + self.config.calibration_s
-            self._mismatch_said = False
-            self._prior_sq[:] = 0.0
-            self._prior_n = 0
-            if self.guard is not None:
-                self.guard.start()                      # a fresh window, the seeded scale
-            if self.config.calibration_s > 0:
-                if self.backend is not None:
-                    self.backend.drift(t)               # eager from the start
-                events.append(Event(t, "calibrating", {"arm": self.arm,
-                                                       "until": self._calibration_end}))
-        if not math.isfinite(self._calibration_end):      # a float: math is cheaper
-            return False
-        if t < self._calibration_end:
-            return True
-        self._calibration_end = np.inf
-        if self.config.calibration_s > 0:
-            prior = self._reset_gate()
-            c = self.counters
-            events.append(Event(t, "calibrated", {"arm": self.arm,
-                                                  "model_version": self.model_version,
-                                                  "samples": c.calibration_samples,
-                                                  "contact": c.calibration_contact,
-                                                  "gate_prior_samples": prior,
-                                                  **self._fit()}))
-            if self.calibration_contaminated:
-                events.append(Event(t, "calibration_contaminated", {
-                    "arm": self.arm, "samples": c.calibration_samples,
-                    "contact": c.calibration_contact,
-                    "fraction": c.calibration_contact / max(c.calibration_samples, 1)}))
-        return False
+    def _drift(self, t: float, residual: np.ndarray, events: list[Event]) -> None:
+        """Feed a free sample's residual to the drift detector; a detection makes the
+        adaptation eager (``drift`` event)."""
+        if self.drift.update(t, residual):
+            self.counters.drifts += 1
+            self._adapt_until = t + self.config.adaptation.eager_s
+            events.append(Event(t, "drift", {"arm": self.arm,
+                                             "level": self.drift.level(residual)}))
+            if self.backend is not None:
+                self.backend.drift(t)
 
-    def _reset_gate(self) -> int:
-        """At the calibration's end, reset the free-motion gate to warm up on the calibrated
-        residual, its warm-up scale bounded by the RMS of the residual over the guard's free
-        samples of the calibration's last ``gate_prior_s`` (not with no guard, a guard that
-        only warns, or too few such samples); how many samples bound it (0: none)."""
-        n = self._prior_n
-        if not self._guard_refuses or n == 0 or n < self.gate.config.warmup_samples:
-            self.gate.reset()
-            return 0
-        self.gate.reset(prior=np.sqrt(self._prior_sq / n))
-        return n
-
-    def _fit(self) -> dict[str, Any]:
-        """The calibration guard's verdict on the step-1 model's fit (status and events)."""
-        guard = self.guard
-        return {"model_mismatch": guard is not None and guard.mismatch,
-                "fit_ratio": None if guard is None else guard.ratio}
+    def _eager(self, t: float) -> None:
+        self._adapt_until = t + self.config.adaptation.eager_s
+        if self.backend is not None:
+            self.backend.drift(t)
 
     @property
-    def calibration_contaminated(self) -> bool:
-        """The guard called more than ``warn_fraction`` of the calibration's samples contact
-        (so far, while calibrating): re-calibrate when it is over."""
-        c = self.counters
-        return (c.calibration_samples > 0 and c.calibration_contact
-                > self.config.calibration_guard.warn_fraction * c.calibration_samples)
+    def guard(self):
+        """The calibration guard (None: none)."""
+        return self.calibration.guard
 
     @property
     def calibrating(self) -> bool:
-        return self._calibration_end is None or bool(np.isfinite(self._calibration_end))
+        return self.calibration.calibrating
+
+    @property
+    def calibration_contaminated(self) -> bool:
+        """The guard called too much of the calibration contact (see
+        :attr:`CalibrationPhase.contaminated`)."""
+        return self.calibration.contaminated
 
     def _contact_events(self, t: float, events: list[Event]) -> None:
         was = self._was_contact
@@ -395,9 +295,9 @@ class ArmPipeline:
                contact_started: int = -1) -> None:
         if self.backend is None or out.window is None:
             return
-        if self.policy == "drift-triggered" and t > self._adapt_until and not calibrating:
+        if not self.mechanism.may_offer(t, self._adapt_until, calibrating):
             return
-        if self.policy == "ungated" or (calibrating and not self._guard_refuses):
+        if self.mechanism.offers_everything or (calibrating and not self.calibration.refuses):
             now = Released(np.array([t]), out.window[None], out.step1_torque[None],
                            effort[None])
             self.counters.offered += offer_rows(self.backend, now, self.on_offer)
@@ -413,16 +313,12 @@ class ArmPipeline:
         if self.backend is None:
             return []
         events = []
-        if self.policy == "periodic-reset":
-            if self._next_reset is None:
-                self._next_reset = t + self.config.policy.reset_every_s
-            elif t >= self._next_reset:
-                self._next_reset = t + self.config.policy.reset_every_s
-                self.backend.reset(t)
-                self.estimator.swap_correction(initial_corr(self.config.adaptation))
-                self.model_version += 1
-                events.append(Event(t, "model", {"arm": self.arm, "version": self.model_version,
-                                                 "reset": True}))
+        if self.mechanism.reset_due(t, self.config.policy.reset_every_s):
+            self.backend.reset(t)
+            self.estimator.swap_correction(initial_corr(self.config.adaptation))
+            self.model_version += 1
+            events.append(Event(t, "model", {"arm": self.arm, "version": self.model_version,
+                                             "reset": True}))
         for result in self.backend.tick(t):
             events.extend(self.apply(result))
         errors = getattr(self.backend, "errors", None)
@@ -480,8 +376,7 @@ class ArmPipeline:
             self.backend.setup_change(t, kind)
         if kind == "instrument":
             self.line.clear()
-            if self.config.calibration_s > 0 and not self.calibrating:
-                self._calibration_end = None       # the next sample starts a calibration
+            self.calibration.restart()          # the next sample starts a calibration
         self._last_setup = {"t": t, **detail}
         return [Event(t, "setup_change", {"arm": self.arm, **detail,
                                           "carry_over": self.backend is not None
@@ -526,7 +421,8 @@ class ArmPipeline:
                          "calibration_samples": c.calibration_samples,
                          "calibration_contact": c.calibration_contact},
             "calibration": {"guard": self.guard is not None,
-                            "contaminated": self.calibration_contaminated, **self._fit()},
+                            "contaminated": self.calibration_contaminated,
+                            **self.calibration.fit()},
             "gate": {"in_contact": self.gate.in_contact, "calibrated": self.gate.calibrated,
                      "contacts": self.gate.contacts, "mean": mean.tolist(),
                      "std": std.tolist(),

@@ -24,6 +24,9 @@ sample contact; the other joints, bounded as before, still see the contacts.
 
 from __future__ import annotations
 
+import math
+from typing import Any
+
 import numpy as np
 
 from wrenchd.models.errors import ConfigError
@@ -31,6 +34,7 @@ from wrenchd.models.estimator.free_space import FreeSpaceModel
 from wrenchd.models.gate import FreeMotionGate, GateDecision
 from wrenchd.models.series import N_JOINTS
 from wrenchd.service.pipeline.config import CalibrationGuardConfig, PipelineConfig
+from wrenchd.service.pipeline.records import Event
 
 #: the window's robust level is first used this long after the calibration's start, then
 #: recomputed this often [s]
@@ -143,3 +147,152 @@ class CalibrationGuard:
             return GateDecision(True, g.score, -1, trainable=True)
         trainable = free if self.config.borderline_trains else g.trainable
         return GateDecision(free, g.score, g.contact_started, trainable=trainable)
+
+
+class CalibrationPhase:
+    """The first ``calibration_s`` of a session (and of a new instrument), whose verdicts are
+    the guard's, and the hand-over to the free-motion gate after it.
+
+    While calibrating, every sample is the guard's to judge (with no guard, free); with a
+    guard that refuses, also the gate's warm-up after it (the warm-up calls nothing free and
+    would drop the delay line). The gate's warm-up scale after it is bounded by the RMS
+    of the residual over the guard's free samples of the last ``gate_prior_s``. At the hand-
+    over the delay line's samples, judged by the guard alone, are dropped; a contact the guard
+    is in then goes on as the gate's.
+
+    Args:
+        arm: name used in events.
+        config: the pipeline's settings.
+        free_space: the step-1 model (its held-out RMSE seeds the guard).
+        gate: the pipeline's free-motion gate (reset at the calibration's end).
+        counters: the pipeline's counters (calibration samples and contact, onsets).
+    """
+
+    def __init__(self, arm: str, config: PipelineConfig, free_space: FreeSpaceModel,
+                 gate: FreeMotionGate, counters) -> None:
+        self.arm, self.config, self.gate, self.counters = arm, config, gate, counters
+        self.guard = CalibrationGuard.build(config, free_space)
+        self.refuses = self.guard is not None and self.guard.refuses
+        self.end: float | None = None         # None: the next sample starts a calibration
+        self._was_guarded = False             # the last sample was the guard's to judge
+        self._mismatch_said = False           # the model_mismatch event of this calibration
+        self._prior_sq = np.zeros(N_JOINTS)   # summed squared residual of the guard's free
+        self._prior_n = 0                     # samples late in the calibration (gate's prior)
+
+    @property
+    def calibrating(self) -> bool:
+        return self.end is None or bool(np.isfinite(self.end))
+
+    def restart(self) -> None:
+        """Calibrate again from the next sample (a new instrument), unless calibrating."""
+        if self.config.calibration_s > 0 and not self.calibrating:
+            self.end = None
+
+    @property
+    def contaminated(self) -> bool:
+        """The guard called more than ``warn_fraction`` of the calibration's samples contact
+        (so far, while calibrating): re-calibrate when it is over."""
+        c = self.counters
+        return (c.calibration_samples > 0 and c.calibration_contact
+                > self.config.calibration_guard.warn_fraction * c.calibration_samples)
+
+    def fit(self) -> dict[str, Any]:
+        """The guard's verdict on the step-1 model's fit (status and events)."""
+        guard = self.guard
+        return {"model_mismatch": guard is not None and guard.mismatch,
+                "fit_ratio": None if guard is None else guard.ratio}
+
+    def overrule(self, index: int, t: float, out, effort: np.ndarray, decision: GateDecision,
+                 warming: bool, events: list, backend, model_version: int, line
+                 ) -> tuple[GateDecision, bool, bool]:
+        """The verdict on sample ``index`` at ``t`` [s] given the gate's ``decision``
+        (``warming``: the gate was warming up before it): ``(decision, calibrating,
+        guarded)``, the guard's verdict where the sample is the guard's to judge."""
+        calibrating = self._step(t, events, backend, model_version)  # may reset the gate
+        gate = self.gate
+        guarded = calibrating or (self.refuses and (warming or not gate.calibrated))
+        if guarded:
+            decision = self._judge(index, t, out, effort, events, calibrating, decision.score)
+            if warming and gate.calibrated and not calibrating:
+                # the hand-over to the gate: a contact too weak for the guard may be in
+                # progress (the gate's settle keeps the next exit_s out of training); the
+                # samples waiting in the delay line, judged by the guard alone, go as well
+                self.counters.discarded_onsets += line.drop_onset(-1)
+                decision = decision._replace(trainable=False)
+        elif self._was_guarded and self.refuses and self.guard.gate.in_contact:
+            # the gate takes over from the guard in the middle of a contact: it goes on
+            # with it (fresh, it would need a run of samples to find it, and train on them)
+            gate.take_over_contact(self.guard.gate.contact_start, t)
+        self._was_guarded = guarded
+        return decision, calibrating, guarded
+
+    def _judge(self, index: int, t: float, out, effort: np.ndarray, events: list,
+               calibrating: bool, score: float) -> GateDecision:
+        """The guard's verdict (free with no guard) on a sample of the calibration (counted)
+        or of the gate's warm-up after it, with the gate's ``score``; the first time in a
+        calibration that the guard finds the step-1 model does not fit, a ``model_mismatch``
+        event."""
+        if calibrating:
+            self.counters.calibration_samples += 1
+        guard = self.guard
+        if guard is None:
+            return GateDecision(True, score, -1, trainable=True)
+        decision = guard.judge(index, t, effort - out.step1_torque)._replace(score=score)
+        if calibrating and not guard.last_free:
+            self.counters.calibration_contact += 1
+        elif calibrating and t >= self.end - self.config.calibration_guard.gate_prior_s:
+            self._prior_sq += out.external_torque * out.external_torque
+            self._prior_n += 1
+        if guard.mismatch and not self._mismatch_said:
+            self._mismatch_said = True
+            ratios = guard.ratios
+            events.append(Event(t, "model_mismatch", {
+                "arm": self.arm, "fit_ratio": float(ratios.max()),
+                "joint": int(np.argmax(ratios)), "fit_ratios": ratios.tolist(),
+                "threshold": self.config.calibration_guard.mismatch_ratio}))
+        return decision
+
+    def _step(self, t: float, events: list, backend, model_version: int) -> bool:
+        """Whether the sample at ``t`` [s] is in the calibration: starts one on the first
+        sample (``calibrating`` event, eager adaptation), ends it (``calibrated`` event, the
+        gate reset) on the first sample past it."""
+        if self.end is None:
+            self.end = t + self.config.calibration_s
+            self._mismatch_said = False
+            self._prior_sq[:] = 0.0
+            self._prior_n = 0
+            if self.guard is not None:
+                self.guard.start()                      # a fresh window, the seeded scale
+            if self.config.calibration_s > 0:
+                if backend is not None:
+                    backend.drift(t)                    # eager from the start
+                events.append(Event(t, "calibrating", {"arm": self.arm, "until": self.end}))
+        if not math.isfinite(self.end):                 # a float: math is cheaper
+            return False
+        if t < self.end:
+            return True
+        self.end = math.inf
+        if self.config.calibration_s > 0:
+            prior = self._reset_gate()
+            c = self.counters
+            events.append(Event(t, "calibrated", {"arm": self.arm, "model_version": model_version,
+                                                  "samples": c.calibration_samples,
+                                                  "contact": c.calibration_contact,
+                                                  "gate_prior_samples": prior, **self.fit()}))
+            if self.contaminated:
+                events.append(Event(t, "calibration_contaminated", {
+                    "arm": self.arm, "samples": c.calibration_samples,
+                    "contact": c.calibration_contact,
+                    "fraction": c.calibration_contact / max(c.calibration_samples, 1)}))
+        return False
+
+    def _reset_gate(self) -> int:
+        """Reset the gate to warm up on the calibrated residual, its warm-up scale bounded by
+        the prior (not with no guard, a guard that only warns, or fewer samples than the
+        gate's warm-up); how many samples bound it (0: none)."""
+        n = self._prior_n
+        if not self.refuses or n == 0 or n < self.gate.config.warmup_samples:
+            self.gate.reset()
+            return 0
+        self.gate.reset(prior=np.sqrt(self._prior_sq / n))
+        return n

@@ -10,8 +10,9 @@ from wrenchd.models.adaptation import AdaptationConfig
 from wrenchd.models.drift_detector import DriftConfig
 from wrenchd.models.estimator.estimator import EstimatorConfig
 from wrenchd.models.gate import GateConfig
+from wrenchd.service.pipeline.mechanisms import MECHANISMS
 
-POLICIES = ("gated", "ungated", "frozen", "drift-triggered", "periodic-reset")
+POLICIES = tuple(MECHANISMS)
 
 
 class ValidationConfig(BaseModel):
