@@ -8,9 +8,9 @@ from wrenchd.service.pipeline.adaptation import AdaptationBackend, InlineAdaptat
 from wrenchd.service.pipeline.arm import ArmPipeline
 from wrenchd.service.pipeline.config import (POLICIES, CalibrationGuardConfig, PipelineConfig,
                                              PolicyConfig, ValidationConfig)
-from wrenchd.service.pipeline.records import Counters, Estimate, Event
+from wrenchd.service.pipeline.records import Counters, Estimate, Event, EventKind
 from wrenchd.service.pipeline.validation import SampleValidator, accepted_indices
 
 __all__ = ["POLICIES", "AdaptationBackend", "ArmPipeline", "CalibrationGuardConfig", "Counters",
-           "Estimate", "Event", "InlineAdaptation", "PipelineConfig", "PolicyConfig",
+           "Estimate", "Event", "EventKind", "InlineAdaptation", "PipelineConfig", "PolicyConfig",
            "SampleValidator", "ValidationConfig", "accepted_indices", "initial_corr"]

@@ -41,7 +41,7 @@ from wrenchd.service.pipeline.adaptation import AdaptationBackend, InlineAdaptat
 from wrenchd.service.pipeline.config import PipelineConfig
 from wrenchd.service.pipeline.delay_line import DelayLine, Released, offer_rows
 from wrenchd.service.pipeline.mechanisms import mechanism
-from wrenchd.service.pipeline.records import Counters, Estimate, Event
+from wrenchd.service.pipeline.records import Counters, Estimate, Event, EventKind
 from wrenchd.service.pipeline.validation import SampleValidator
 from wrenchd.models.adaptation import RoundResult
 
@@ -86,7 +86,7 @@ class ArmPipeline:
     def _error(self, t: float, kind: str, reason: str) -> Event:
         self.counters.errors += 1
         self.counters.error_kinds[kind] = self.counters.error_kinds.get(kind, 0) + 1
-        return Event(t, "error", {"arm": self.arm, "error": kind, "reason": reason})
+        return Event(t, EventKind.ERROR, {"arm": self.arm, "error": kind, "reason": reason})
 
     def reject(self, t: float, kind: str, reason: str) -> Event:
         """Count and describe an input refused before it reached the pipeline (decoding)."""
@@ -194,7 +194,7 @@ class ArmPipeline:
             event = self._error(t, kind, f"stamp {msg.stamp_ns} ns after {last} ns")
             if self._behind < self.config.validation.resync_after:
                 return [event]
-            events += [event, Event(t, "clock_reset", {          # a new timeline: accept it
+            events += [event, Event(t, EventKind.CLOCK_RESET, {          # a new timeline: accept it
                 "arm": self.arm, "last_ns": last, "now_ns": msg.stamp_ns})]
             last = None
         gap_s = None
@@ -212,7 +212,7 @@ class ArmPipeline:
         if gap_s is not None:
             self.counters.gaps += 1
             self.line.clear()                          # the delay line spans no gap
-            events.append(Event(t, "gap", {"arm": self.arm, "gap_s": gap_s}))
+            events.append(Event(t, EventKind.GAP, {"arm": self.arm, "gap_s": gap_s}))
         # a non-finite value makes the sum non-finite; a finite sum can only overflow (then
         # the exact check decides): six Python floats add faster than NumPy checks six values
         if not math.isfinite(sum(out.wrench.tolist())) and not np.isfinite(out.wrench).all():
@@ -244,10 +244,10 @@ class ArmPipeline:
         detector, fed free samples only, saw none of it) or a re-calibration, as events."""
         if decision.setup_change:
             self._eager(t)
-            events.append(Event(t, "gate_setup_change", {
+            events.append(Event(t, EventKind.GATE_SETUP_CHANGE, {
                 "arm": self.arm, "setup_contact_s": self.config.gate.setup_contact_s}))
         elif decision.recalibrated:
-            events.append(Event(t, "gate_recalibrated", {
+            events.append(Event(t, EventKind.GATE_RECALIBRATED, {
                 "arm": self.arm, "max_contact_s": self.config.gate.max_contact_s}))
 
     def _drift(self, t: float, residual: np.ndarray, events: list[Event]) -> None:
@@ -256,7 +256,7 @@ class ArmPipeline:
         if self.drift.update(t, residual):
             self.counters.drifts += 1
             self._adapt_until = t + self.config.adaptation.eager_s
-            events.append(Event(t, "drift", {"arm": self.arm,
+            events.append(Event(t, EventKind.DRIFT, {"arm": self.arm,
                                              "level": self.drift.level(residual)}))
             if self.backend is not None:
                 self.backend.drift(t)
@@ -285,9 +285,9 @@ class ArmPipeline:
         was = self._was_contact
         now = self.gate.in_contact
         if now and not was:
-            events.append(Event(t, "contact_start", {"arm": self.arm}))
+            events.append(Event(t, EventKind.CONTACT_START, {"arm": self.arm}))
         elif was and not now:
-            events.append(Event(t, "contact_end", {"arm": self.arm}))
+            events.append(Event(t, EventKind.CONTACT_END, {"arm": self.arm}))
         self._was_contact = now
 
     def _offer(self, t: float, out, effort: np.ndarray, free: bool, events: list[Event],
@@ -317,13 +317,13 @@ class ArmPipeline:
             self.backend.reset(t)
             self.estimator.swap_correction(initial_corr(self.config.adaptation))
             self.model_version += 1
-            events.append(Event(t, "model", {"arm": self.arm, "version": self.model_version,
+            events.append(Event(t, EventKind.MODEL, {"arm": self.arm, "version": self.model_version,
                                              "reset": True}))
         for result in self.backend.tick(t):
             events.extend(self.apply(result))
         errors = getattr(self.backend, "errors", None)
         while errors:
-            events.append(Event(t, "adaptation_error", {"arm": self.arm, "error": errors.pop(0),
+            events.append(Event(t, EventKind.ADAPTATION_ERROR, {"arm": self.arm, "error": errors.pop(0),
                                                         "serving_version": self.model_version}))
         return events
 
@@ -378,7 +378,7 @@ class ArmPipeline:
             self.line.clear()
             self.calibration.restart()          # the next sample starts a calibration
         self._last_setup = {"t": t, **detail}
-        return [Event(t, "setup_change", {"arm": self.arm, **detail,
+        return [Event(t, EventKind.SETUP_CHANGE, {"arm": self.arm, **detail,
                                           "carry_over": self.backend is not None
                                           and kind == "pressure"
                                           and self.config.adaptation.body_wall.enabled})]
@@ -391,7 +391,7 @@ class ArmPipeline:
         self.counters.rounds += 1
         self.body_wall = list(result.body_wall)
         t = self.line.last_t if self.line.last_t is not None else result.t
-        events = [Event(t, "round", {"arm": self.arm, **{
+        events = [Event(t, EventKind.ROUND, {"arm": self.arm, **{
             k: v for k, v in result.summary().items() if k != "t"}})]
         if result.accepted and result.state_dict is not None:
             # a reference swap: the worker sent the kernel ready to serve
@@ -399,7 +399,7 @@ class ArmPipeline:
             self.counters.swaps += 1
             self.model_version = result.version
             self.model_validation = result.val_after
-            events.append(Event(t, "model", {
+            events.append(Event(t, EventKind.MODEL, {
                 "arm": self.arm, "version": result.version, "val_before": result.val_before,
                 "val_after": result.val_after}))
         return events

@@ -34,7 +34,7 @@ from wrenchd.models.estimator.free_space import FreeSpaceModel
 from wrenchd.models.gate import FreeMotionGate, GateDecision
 from wrenchd.models.series import N_JOINTS
 from wrenchd.service.pipeline.config import CalibrationGuardConfig, PipelineConfig
-from wrenchd.service.pipeline.records import Event
+from wrenchd.service.pipeline.records import Event, EventKind
 
 #: the window's robust level is first used this long after the calibration's start, then
 #: recomputed this often [s]
@@ -246,7 +246,7 @@ class CalibrationPhase:
         if guard.mismatch and not self._mismatch_said:
             self._mismatch_said = True
             ratios = guard.ratios
-            events.append(Event(t, "model_mismatch", {
+            events.append(Event(t, EventKind.MODEL_MISMATCH, {
                 "arm": self.arm, "fit_ratio": float(ratios.max()),
                 "joint": int(np.argmax(ratios)), "fit_ratios": ratios.tolist(),
                 "threshold": self.config.calibration_guard.mismatch_ratio}))
@@ -266,7 +266,7 @@ class CalibrationPhase:
             if self.config.calibration_s > 0:
                 if backend is not None:
                     backend.drift(t)                    # eager from the start
-                events.append(Event(t, "calibrating", {"arm": self.arm, "until": self.end}))
+                events.append(Event(t, EventKind.CALIBRATING, {"arm": self.arm, "until": self.end}))
         if not math.isfinite(self.end):                 # a float: math is cheaper
             return False
         if t < self.end:
@@ -275,12 +275,12 @@ class CalibrationPhase:
         if self.config.calibration_s > 0:
             prior = self._reset_gate()
             c = self.counters
-            events.append(Event(t, "calibrated", {"arm": self.arm, "model_version": model_version,
+            events.append(Event(t, EventKind.CALIBRATED, {"arm": self.arm, "model_version": model_version,
                                                   "samples": c.calibration_samples,
                                                   "contact": c.calibration_contact,
                                                   "gate_prior_samples": prior, **self.fit()}))
             if self.contaminated:
-                events.append(Event(t, "calibration_contaminated", {
+                events.append(Event(t, EventKind.CALIBRATION_CONTAMINATED, {
                     "arm": self.arm, "samples": c.calibration_samples,
                     "contact": c.calibration_contact,
                     "fraction": c.calibration_contact / max(c.calibration_samples, 1)}))

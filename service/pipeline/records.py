@@ -3,17 +3,48 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from enum import StrEnum
 from typing import Any
 
 import numpy as np
+
+
+class EventKind(StrEnum):
+    """What an :class:`Event` tells; a member equals its string (``EventKind.DRIFT == "drift"``),
+    the form logs and subscribers carry."""
+
+    ERROR = "error"
+    GAP = "gap"
+    CLOCK_RESET = "clock_reset"
+    CALIBRATING = "calibrating"
+    CALIBRATED = "calibrated"
+    CALIBRATION_CONTAMINATED = "calibration_contaminated"
+    MODEL_MISMATCH = "model_mismatch"
+    CONTACT_START = "contact_start"
+    CONTACT_END = "contact_end"
+    GATE_SETUP_CHANGE = "gate_setup_change"
+    GATE_RECALIBRATED = "gate_recalibrated"
+    DRIFT = "drift"
+    SETUP_CHANGE = "setup_change"
+    ROUND = "round"
+    MODEL = "model"
+    ADAPTATION_ERROR = "adaptation_error"
+    LOG_ERROR = "log_error"
+    LOG_REMOVED = "log_removed"
+    ZENOH_LINK = "zenoh_link"
+
 
 @dataclass(frozen=True)
 class Event:
     """Something worth telling subscribers and the log: ``kind`` and JSON-able ``detail``."""
 
     t: float
-    kind: str       # error | gap | contact_start | contact_end | drift | model | round | ...
+    kind: EventKind
     detail: dict[str, Any]
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.kind, EventKind):      # a kind read back from a log
+            object.__setattr__(self, "kind", EventKind(self.kind))
 
     def to_json(self) -> dict[str, Any]:
         return {"t": self.t, "kind": self.kind, **self.detail}

@@ -21,7 +21,7 @@ from wrenchd.models.estimator.free_space import FreeSpaceModel
 from wrenchd.models.series import JOINT_NAMES
 from wrenchd.service.runtime.settings import ArmConfig, ServiceSettings
 from wrenchd.service.runtime.scheduling import thread_scheduling
-from wrenchd.service.pipeline import ArmPipeline, Estimate, Event
+from wrenchd.service.pipeline import ArmPipeline, Estimate, Event, EventKind
 from wrenchd.service.runtime.log_process import LogWriterProcess
 from wrenchd.service.pipeline.step1 import Step1
 from wrenchd.service.runtime.plumbing import Console, SampleRing, event_bytes, percentiles
@@ -306,7 +306,7 @@ class ArmRuntime:
             self._console(status)
         if self.log.problem and not self._log_problem_reported:
             self._log_problem_reported = True
-            self._publish_events([Event(self.event_time(), "log_error",
+            self._publish_events([Event(self.event_time(), EventKind.LOG_ERROR,
                                         {"arm": self.name, "error": self.log.problem})])
         elif self.log.problem is None:                # a fresh file is open again
             self._log_problem_reported = False
@@ -320,10 +320,10 @@ class ArmRuntime:
         while self.log.removed:
             what, path, detail = self.log.removed.popleft()
             if what == "removed":
-                events.append(Event(t, "log_removed", {"arm": self.name, "path": path,
+                events.append(Event(t, EventKind.LOG_REMOVED, {"arm": self.name, "path": path,
                                                        "bytes": detail}))
             else:
-                events.append(Event(t, "log_error", {"arm": self.name, "error": detail}))
+                events.append(Event(t, EventKind.LOG_ERROR, {"arm": self.name, "error": detail}))
         return events
 
     def _console(self, status: dict[str, Any]) -> None:

@@ -51,7 +51,7 @@ from wrenchd.adapters.rmw_zenoh import node_token
 from wrenchd.adapters.zenoh_io import open_session
 from wrenchd.service.runtime.settings import ServiceSettings
 from wrenchd.models.adaptation import normalisation_of
-from wrenchd.service.pipeline import ArmPipeline, Event
+from wrenchd.service.pipeline import ArmPipeline, Event, EventKind
 from wrenchd.service.runtime.log_process import LogWriterProcess
 from wrenchd.service.runtime.scheduling import enter_realtime, normal_scheduling, realtime, realtime_below
 from wrenchd.service.pipeline.step1 import Step1, load_step1
@@ -329,7 +329,7 @@ class Daemon:
             arm.zenoh_links["link_losses"] += int(lost)
             if before is None:                               # the first count: no change yet
                 continue
-            arm._publish_events([Event(arm.event_time(), "zenoh_link", {
+            arm._publish_events([Event(arm.event_time(), EventKind.ZENOH_LINK, {
                 "arm": arm.name, "routers": links[0], "peers": links[1], "lost": lost})])
 
     @staticmethod
