@@ -17,6 +17,8 @@ MODULES = (
     "wrenchd.models.residual_scale",
     "wrenchd.models.contact_hysteresis",
     "wrenchd.service.pipeline.mechanisms",
+    "wrenchd.models.estimator.estimator",
+    "wrenchd.service.pipeline.arm",
 )
 
 

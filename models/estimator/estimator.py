@@ -102,6 +102,17 @@ class TwoStepEstimator:
         wrench_map: a prepared map (else built from ``config.wrench``).
     Raises:
         ConfigError: an ``Xfer`` whose frozen layers are not ``free_space``'s.
+
+    A 2 N push along the base frame's z at the tip, on top of the arm's own torques:
+
+    >>> from wrenchd.models.estimator.pretrained import load_pretrained
+    >>> est = TwoStepEstimator(load_pretrained("base"))
+    >>> q, dq = np.array([0.1, -0.2, 0.12, 0.0, 0.1, 0.1]), np.zeros(6)   # [rad, m]; at rest
+    >>> own = est.step_one(0.0, q, dq, np.zeros(6)).predicted_torque
+    >>> push = est.wrench_map.kinematics.jacobian(q, "hybrid").T @ [0, 0, 2.0, 0, 0, 0]
+    >>> out = est.step_one(0.001, q, dq, own + push)                # 1 ms later
+    >>> round(float(out.wrench[2]), 1), bool(abs(out.wrench[:2]).max() < 0.5)
+    (2.1, True)
     """
 
     def __init__(self, free_space: FreeSpaceModel, correction: Corr | Xfer | None = None,

@@ -3,34 +3,24 @@
     tau(q, dq) = physics(q, dq, ddq_hat) + w(q, dq) * residual([q, dq, ddq_hat])
 
 * ``physics``: the rigid-body + friction model identified by least squares
-  (:mod:`wrenchd.models.physics.least_squares`), fed with the causal acceleration estimate
-  ``ddq_hat`` (:mod:`wrenchd.models.physics.causal_acceleration`): it extrapolates to joint
-  states the training never visited. By default (:data:`HYBRID_PHYSICS`) its columns include
-  a presliding friction per joint (the play operator of
-  :mod:`wrenchd.models.physics.hysteresis`, 0.01 rad wide, 1 mm on the insertion joint), and
-  the fit drops the parameter directions the training excites below 1e-4 of the strongest
-  (1e-5 in the plain least-squares default): both lower the free-motion tip force of a model
-  fitted on four fifths of the phases of a periodic real recording and tested on the fifth,
-  the states it has not seen.
-* ``residual``: a small feed-forward network (tanh) learns what physics misses, from the
-  joint state and the same acceleration estimate (so it can also correct that estimate's lag
-  and noise where it has seen the trajectory).
-* ``w``: the trust of :class:`wrenchd.models.estimator.coverage.Coverage`; outside the joint
-  positions and velocities of the training data the residual fades out and physics alone
-  remains.
+  (:mod:`wrenchd.models.physics.least_squares`) on the causal acceleration estimate
+  ``ddq_hat`` (:mod:`wrenchd.models.physics.causal_acceleration`); it extrapolates to joint
+  states the training never visited. :data:`HYBRID_PHYSICS` adds a presliding friction per
+  joint (the play operator of :mod:`wrenchd.models.physics.hysteresis`) and drops parameter
+  directions excited below 1e-4 of the strongest.
+* ``residual``: a small tanh feed-forward network learns what physics misses, from the joint
+  state and the same acceleration (so it also corrects that estimate's lag where it has seen
+  the trajectory): a smooth function that a 2 x 128 network fits in a minute on a CPU and
+  runs in microseconds, with no recurrent state to warm up.
+* ``w``: the trust of :class:`wrenchd.models.estimator.coverage.Coverage`; outside the
+  training data's joint states the residual fades out and physics alone remains.
 
-Why a feed-forward residual and not the paper's per-group LSTMs: the residual of a good
-physics model on a repeated trajectory is a smooth function of the joint state and the
-acceleration, which a 2 x 128 tanh network fits in a minute on a CPU, and it runs one sample
-in microseconds without a recurrent state to warm up (``wrenchd real-data`` measures both).
-
-The whole model is causal: :meth:`HybridStep1.step` (sample by sample, several streams) and
-:meth:`HybridStep1.run` / :meth:`HybridStep1.predict_sequence` (a segment at once) give the
-same numbers. It has the interface :class:`~wrenchd.models.estimator.estimator.TwoStepEstimator`
-uses of its step 1 (``kernel()``, ``predict_sequence``), so it can stand where a
-:class:`~wrenchd.models.estimator.free_space.FreeSpaceModel` does (no ``Xfer``; a ``Corr``
-needs its own training support). Units: features ``[q, dq]`` [rad, m; rad/s, m/s], torques
-[N m; N]; the sample rate must be the training rate (the acceleration filter's).
+Causal: :meth:`HybridStep1.step` (sample by sample, several streams) and
+:meth:`HybridStep1.run` / :meth:`HybridStep1.predict_sequence` give the same numbers. It can
+stand where a :class:`~wrenchd.models.estimator.free_space.FreeSpaceModel` does (``kernel()``,
+``predict_sequence``; no ``Xfer``). Units: features ``[q, dq]`` [rad, m; rad/s, m/s],
+torques [N m; N]; the sample rate must be the training rate (the acceleration filter's).
+The measured effect of each choice: ``docs/results.md`` (step 1 on real dVRK data).
 """
 
 from __future__ import annotations

@@ -54,6 +54,23 @@ class ArmPipeline:
         free_space: the step-1 model (shipped weights or a checkpoint).
         config: the pipeline's settings.
         backend: adaptation backend; default inline (replay); None with policy ``frozen``.
+
+    A sample is estimated (the gate warms up first: nothing is free yet); a repeated stamp and
+    a sample with NaN positions are error events, never estimated:
+
+    >>> from wrenchd.models.estimator.pretrained import load_pretrained
+    >>> from wrenchd.models.series import JointSample
+    >>> arm = ArmPipeline("PSM1", load_pretrained("base"), PipelineConfig(calibration_s=0.0))
+    >>> q, zero, names = np.array([0.1, -0.2, 0.12, 0, 0, 0]), np.zeros(6), tuple("abcdef")
+    >>> est, events = arm.process(JointSample(1_000_000, "", names, q, zero, zero))
+    >>> est.index, est.free, est.wrench.shape, events
+    (0, False, (6,), [])
+    >>> for stamp_ns, position in ((1_000_000, q), (2_000_000, q * np.nan)):
+    ...     est, events = arm.process(JointSample(stamp_ns, "", names, position, zero, zero))
+    ...     print(est, [(e.kind.value, e.detail["error"]) for e in events])
+    None [('error', 'duplicate')]
+    None [('error', 'invalid')]
+    >>> arm.close()
     """
 
     def __init__(self, arm: str, free_space: FreeSpaceModel, config: PipelineConfig | None = None,
@@ -334,22 +351,13 @@ class ArmPipeline:
     def setup_change(self, t: float | None = None, detail: dict[str, Any] | None = None
                      ) -> list[Event]:
         """An announced set-up change at sample time ``t`` [s] (None: the last estimated
-        sample's): adaptation gets eager as after a drift. ``detail["kind"]`` (default
-        ``"pressure"``, :data:`~wrenchd.models.adaptation.adapter.SETUP_KINDS`) says what
-        changed:
-
-        * ``"pressure"`` (the insufflator's pressure set differently, a port moved): the adapter
-          carries its buffer over to the new set-up
-          (:meth:`wrenchd.models.adaptation.adapter.Adapter.on_setup_change`).
-        * ``"instrument"`` (a tool swapped: a new payload): the adapter forgets the old
-          instrument's samples, the delay line's are dropped, and the calibration runs again
-          from the next sample for ``calibration_s`` (a swap happens with the instrument out
-          of tissue; the gate then re-learns its bounds on the new instrument's residual, which
-          it would otherwise take for a contact that never ends).
-
-        ``detail`` (JSON values) goes into the ``setup_change`` event. An unknown kind, a time
-        that is not finite, or more than ``validation.setup_ahead_s`` after the latest sample,
-        is refused with an error event."""
+        sample's): adaptation gets eager as after a drift. ``detail["kind"]``
+        (:data:`~wrenchd.models.adaptation.adapter.SETUP_KINDS`): ``"pressure"`` (default; the
+        adapter carries its buffer over), ``"instrument"`` (a new payload: the adapter forgets
+        the old instrument's samples, the delay line is dropped and the calibration runs again
+        from the next sample, the instrument being out of tissue during a swap). ``detail``
+        (JSON values) goes into the ``setup_change`` event. An unknown kind, a time that is not
+        finite or more than ``validation.setup_ahead_s`` ahead is refused (error event)."""
         detail = dict(detail or {})
         last = self.line.last_t
         kind = detail.get("kind", "pressure")
