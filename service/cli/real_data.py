@@ -74,7 +74,8 @@ def _command(args: argparse.Namespace) -> str:
 
 def _cmd(args: argparse.Namespace) -> int:
     import torch
-    from wrenchd.service.studies.real_data import KnownLoad, Source, evaluate
+    from wrenchd.service.studies.newtons import KnownLoad
+    from wrenchd.service.studies.real_data import Source, evaluate
     from wrenchd.service.studies.real_data_report import markdown
 
     if args.threads:

@@ -17,16 +17,7 @@ filter reading that far past the estimated sample (``hybrid_lookahead_<ms>ms``):
 estimate published that much later would gain over the causal one. Such a model does not
 stream; it measures a latency the service does not have.
 
-Newtons at the tip (``tip_force_N``): on free motion the true tip force is zero, so the force
-part of the wrench that each model's external torque maps to (``WrenchMap``, the served map)
-is all error: RMS and 95th percentile of its norm per model, beside ``measured_cf`` (the
-effort alone through ``J^-T``, as the dVRK computes it), ``measured_cf_minus_gravity`` (the
-effort less the gravity torque identified by least squares: velocity and acceleration zero)
-and the repeatability floor through the same map (``tip_force_floor_N``).
-
-Known loads (``known_loads``): a mass at a given point of a given link
-(:mod:`wrenchd.models.physics.point_load`) gives expected external torques; each model's
-estimated external torque is scored against them and the mass refitted with the point held.
+Newtons at the tip and known loads: :mod:`wrenchd.service.studies.newtons`.
 
 Besides the RMSE per joint: the share of test samples inside the hybrid's training coverage
 and the errors there, the test recording's run-to-run repeatability (its trajectories repeat:
@@ -41,11 +32,14 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from wrenchd.models.errors import ConfigError, DataError
 from wrenchd.models.series import JointStates
+
+if TYPE_CHECKING:
+    from wrenchd.service.studies.newtons import KnownLoad
 
 MODELS = ("lstm", "ls", "hybrid", "lstm-residual")
 #: Shortened step-1 recipe for 30 s recordings (the paper trains 1000 epochs on far more).
@@ -181,152 +175,6 @@ def load_summary(external: np.ndarray, q: np.ndarray) -> dict[str, Any]:
             "external_rms": np.sqrt(np.mean(external ** 2, 0))[:3].tolist(),
             "moment_vector_kgm": moment.tolist(), "moment_kgm": float(np.linalg.norm(moment)),
             "moment_with_offsets_kgm": float(np.linalg.norm(load_moment(external, q, True)))}
-
-
-def _force_stats(force: np.ndarray) -> dict[str, float]:
-    norm = np.linalg.norm(force, axis=1)
-    return {"rms": float(np.sqrt(np.mean(norm ** 2))), "p95": float(np.quantile(norm, 0.95)),
-            "rms_xyz": np.sqrt(np.mean(force ** 2, axis=0)).tolist()}
-
-
-def tip_forces(q: np.ndarray, external: np.ndarray) -> np.ndarray:
-    """Force part (N, 3) [N] of the served map's wrench for external torques (N, 6)."""
-    from wrenchd.models.estimator.wrench import WrenchMap
-
-    return WrenchMap().wrench_batch(q, external)[:, :3]
-
-
-def tip_force_table(trained: Trained, js: JointStates) -> dict[str, dict[str, float]]:
-    """``{model: {rms, p95, rms_xyz}}`` [N] of the free-motion tip force on one series."""
-    preds = trained.predict(js)
-    out = {"measured_cf": _force_stats(tip_forces(js.position, js.effort))}
-    if "ls" in trained.models:
-        zeros = np.zeros_like(js.velocity)
-        gravity = trained.ls.predict(js.position, zeros, zeros)
-        out["measured_cf_minus_gravity"] = _force_stats(tip_forces(js.position,
-                                                                   js.effort - gravity))
-    for key, pred in preds.items():
-        if not key.startswith("_"):
-            out[key] = _force_stats(tip_forces(js.position, js.effort - pred))
-    return out
-
-
-def tip_force_floor(js: JointStates, period_s: float) -> dict[str, float]:
-    """The repeatability floor at the tip: the torque difference one period apart, over
-    sqrt 2, through the served map (at the later sample's pose)."""
-    p = int(round(period_s / float(np.median(np.diff(js.t)))))
-    diff = (js.effort[p:] - js.effort[:-p]) / np.sqrt(2.0)
-    return _force_stats(tip_forces(js.position[p:], diff))
-
-
-@dataclass(frozen=True)
-class KnownLoad:
-    """A recording with ``mass_kg`` added at ``point`` [m] in ``link``'s frame."""
-
-    source: Source
-    mass_kg: float
-    link: str
-    point: tuple[float, float, float]
-
-    @classmethod
-    def parse(cls, spec: str) -> KnownLoad:
-        """``FILE:MASS_KG:LINK:X,Y,Z`` (FILE may carry a window, ``file:a:b``)."""
-        from wrenchd.models.physics.point_load import LINKS
-
-        parts = spec.rsplit(":", 3)
-        if len(parts) != 4:
-            raise ConfigError(f"known load {spec!r}: expected FILE:MASS_KG:LINK:X,Y,Z")
-        path, mass, link, xyz = parts
-        try:
-            mass_kg = float(mass)
-            point = tuple(float(v) for v in xyz.split(","))
-        except ValueError:
-            raise ConfigError(f"known load {spec!r}: the mass [kg] and X,Y,Z [m] must be "
-                              "numbers") from None
-        if not (np.isfinite(mass_kg) and mass_kg > 0) or len(point) != 3 or not np.isfinite(
-                point).all():
-            raise ConfigError(f"known load {spec!r}: expected a positive mass [kg] and three "
-                              "finite coordinates [m]")
-        if link not in LINKS:
-            raise ConfigError(f"known load {spec!r}: unknown link {link!r}; choose from "
-                              f"{', '.join(LINKS)}")
-        return cls(Source.parse(path), mass_kg, link, point)  # type: ignore[arg-type]
-
-
-#: Rotations of gravity about the yaw axis [deg] over which the fitted mass's sensitivity to
-#: the assumed gravity direction is reported.
-GRAVITY_TILTS_DEG = (-5.0, 5.0)
-
-
-def _yaw_axis() -> np.ndarray:
-    from wrenchd.models.physics.point_load import link_poses
-
-    return link_poses(np.zeros((1, 6)), "outer_yaw")[0, :3, 2]
-
-
-def _rotated_gravity(degrees: float) -> np.ndarray:
-    from scipy.spatial.transform import Rotation
-
-    from wrenchd.models.physics.dynamics import RigidBodyConfig
-
-    g = np.asarray(RigidBodyConfig().gravity_mps2, np.float64)
-    return Rotation.from_rotvec(np.deg2rad(degrees) * _yaw_axis()).apply(g)
-
-
-def fitted_mass(expected_per_kg: np.ndarray, external: np.ndarray) -> float:
-    """Least-squares mass [kg] with the point held (:func:`~wrenchd.models.physics.point_load.
-    fit_mass`)."""
-    from wrenchd.models.physics.point_load import fit_mass
-
-    return fit_mass(expected_per_kg, external)["mass_kg"]
-
-
-def known_load_study(trained: Trained, loads: Sequence[KnownLoad]) -> list[dict[str, Any]]:
-    """Expected against estimated external torques for each known load (JSON-ready)."""
-    from wrenchd.models.physics.point_load import point_load_torque
-
-    out = []
-    for load in loads:
-        js = load.source.load()
-        rate_hz = 1.0 / float(np.median(np.diff(js.t)))
-        if hasattr(trained, "hybrid"):
-            js = at_rate(js, trained.hybrid.acceleration.dt_s)
-        dt = float(np.median(np.diff(js.t)))
-        point = np.asarray(load.point)
-        per_kg = point_load_torque(js.position, load.link, point, dt)
-        static_per_kg = point_load_torque(js.position, load.link, point)
-        joints = np.flatnonzero(np.sqrt(np.mean(per_kg ** 2, axis=0)) > 1e-9)
-        expected = load.mass_kg * per_kg
-        rec: dict[str, Any] = {
-            "file": load.source.label, "mass_kg": load.mass_kg, "link": load.link,
-            "rate_hz": rate_hz, "scored_at_hz": 1.0 / dt,
-            "point_m": list(load.point), "joints": (joints + 1).tolist(),
-            "gravity_mps2": list(_rotated_gravity(0.0)),
-            "expected_rms": np.sqrt(np.mean(expected ** 2, axis=0)).tolist(), "models": {}}
-        # the same load under gravity turned about the yaw axis: one per tilt, every model
-        tilted = {f"{deg:+g}": point_load_torque(js.position, load.link, point, dt,
-                                                 _rotated_gravity(deg))
-                  for deg in GRAVITY_TILTS_DEG}
-        for key, pred in trained.predict(js).items():
-            if key.startswith("_"):
-                continue
-            external = js.effort - pred
-            force = tip_forces(js.position, external - expected)
-            rec["models"][key] = {
-                "fitted_mass_kg": fitted_mass(per_kg, external),
-                "fitted_mass_static_kg": fitted_mass(static_per_kg, external),
-                "fitted_mass_gravity_rotated_kg": {
-                    tilt: fitted_mass(torque, external) for tilt, torque in tilted.items()},
-                "torque_rmse": rmse(external, expected),
-                "force_error_N": _force_stats(force)}
-        rec["served"] = "hybrid" if "hybrid" in rec["models"] else next(iter(rec["models"]))
-        served = rec["models"][rec["served"]]
-        rec["fitted_mass_kg"] = served["fitted_mass_kg"]
-        rec["mass_error"] = served["fitted_mass_kg"] / load.mass_kg - 1.0
-        rec["torque_rmse"] = served["torque_rmse"]
-        rec["force_error_N"] = served["force_error_N"]
-        out.append(rec)
-    return out
 
 
 def at_rate(js: JointStates, dt: float) -> JointStates:
@@ -471,6 +319,8 @@ def evaluate(train: Sequence[Source], test: Source, models: Sequence[str] = MODE
     torques and the free-motion tip force), estimate the external torque on each of
     ``loads`` and score it against each of ``known_loads``; ``lookahead_ms``: the hybrid again
     with an acceleration reading that far ahead (offline). Returns a JSON-ready dict."""
+    from wrenchd.service.studies.newtons import known_load_study, tip_force_floor, tip_force_table
+
     unknown = set(models) - set(MODELS)
     if unknown or not models:
         raise ConfigError(f"unknown models {sorted(unknown)}; choose from {', '.join(MODELS)}")

@@ -71,7 +71,8 @@ def _path(data: Path, name: str) -> str:
 
 def newtons_and_loads(data: Path, config: RealRobotConfig) -> dict[str, Any]:
     """Parts 1 and 2: :func:`~wrenchd.service.studies.real_data.evaluate` with known loads."""
-    from wrenchd.service.studies.real_data import KnownLoad, Source, evaluate
+    from wrenchd.service.studies.newtons import KnownLoad
+    from wrenchd.service.studies.real_data import Source, evaluate
 
     loads = [KnownLoad(Source(_path(data, name)), mass, "parallel_upper", LOAD_POINTS[mass])
              for name, mass in LOADED]

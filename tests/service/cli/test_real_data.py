@@ -109,15 +109,16 @@ def test_newtons_at_the_tip_and_known_loads(wpi_data, tmp_path):
 
 
 def test_known_load_specs_are_validated():
-    from wrenchd.service.studies.real_data import KnownLoad
+    from wrenchd.service.studies.newtons import KnownLoad
 
     load = KnownLoad.parse("a/one.csv:0:10:0.105:parallel_upper:0.165,-0.02,0")
     assert load.source == Source("a/one.csv", 0.0, 10.0) and load.point == (0.165, -0.02, 0.0)
     for bad, match in (("one.csv:0.1:parallel_upper", "expected FILE"),
                        ("one.csv:-1:parallel_upper:0,0,0", "positive mass"),
-                       ("one.csv:0.1:forearm:0,0,0", "unknown link"),
-                       ("one.csv:0.1:outer_yaw:0,0", "positive mass"),
-                       ("one.csv:heavy:outer_yaw:0,0,0", "must be numbers")):
+                       ("one.csv:0.1:forearm:0,0,0", "LINK one of"),
+                       ("one.csv:0.1:outer_yaw:0,0", "three finite coordinates"),
+                       ("one.csv:0.1:outer_yaw:0,0,x", "must be numbers"),
+                       ("one.csv:heavy:outer_yaw:0,0,0", "must be a number")):
         with pytest.raises(ConfigError, match=match):
             KnownLoad.parse(bad)
 
