@@ -24,8 +24,9 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from wrenchd.models.errors import ConfigError, DataError
+from wrenchd.models.estimator import joint_streams
 from wrenchd.models.estimator.correction import Corr, CorrKernel, HistoryWindow, Xfer
-from wrenchd.models.estimator.features import segments
+from wrenchd.models.estimator.features import position_jumps, segments
 from wrenchd.models.estimator.free_space import FreeSpaceModel
 from wrenchd.models.estimator.wrench import WrenchMap, WrenchMapConfig
 from wrenchd.models.series import N_JOINTS, JointStates
@@ -38,6 +39,11 @@ class EstimatorConfig(BaseModel):
 
     max_gap_s: float = Field(default=0.05, gt=0.0,
                              description="a longer time step restarts the state [s]")
+    max_jump: tuple[float, float, float, float, float, float] | None = Field(
+        default=(0.05, 0.05, 0.005, 0.1, 0.1, 0.1),
+        description="a joint position further than this from where its velocity carried it "
+                    "restarts the state (a splice of two streams, an encoder re-zeroed) "
+                    "[rad; m on insertion]; None: never")
     wrench: WrenchMapConfig = Field(default_factory=WrenchMapConfig)
 
 
@@ -126,6 +132,8 @@ class TwoStepEstimator:
         self._correction_state: dict[str, np.ndarray] | None = None   # swapped in, not yet a Corr
         self.config = config if config is not None else EstimatorConfig()
         self.wrench_map = wrench_map if wrench_map is not None else WrenchMap(self.config.wrench)
+        jump = self.config.max_jump
+        self._max_jump = None if jump is None else np.asarray(jump, dtype=np.float64)
         self.refresh()
 
     @property
@@ -200,8 +208,18 @@ class TwoStepEstimator:
         """Forget the past: the next sample starts a new segment."""
         self._state = None
         self._t_last: float | None = None
+        self._q_last = self._dq_last = np.zeros(N_JOINTS)
         if self._window is not None:
             self._window.reset()
+
+    def _jumped(self, t: float, q: np.ndarray, dq: np.ndarray) -> bool:
+        """The position ``q`` (6,) at ``t`` [s] jumped from the last sample's (see
+        :func:`~wrenchd.models.estimator.features.position_jumps`)."""
+        jump = self._max_jump
+        if jump is None:
+            return False
+        moved = q - self._q_last - (dq + self._dq_last) * (0.5 * (t - self._t_last))
+        return bool((np.abs(moved) > jump).any())
 
     def step_one(self, t: float, q: np.ndarray, dq: np.ndarray,
                  tau_measured: np.ndarray) -> EstimatorOutput:
@@ -222,10 +240,11 @@ class TwoStepEstimator:
         x = np.concatenate([q, dq])                              # (12,) [q, dq]
         if not (np.isfinite(t) and np.isfinite(x).all() and np.isfinite(tau_measured).all()):
             raise DataError("joint state contains NaN or Inf")
-        restart = (self._t_last is None or not 0.0 < t - self._t_last <= self.config.max_gap_s)
+        restart = (self._t_last is None or not 0.0 < t - self._t_last <= self.config.max_gap_s
+                   or self._jumped(t, q, dq))
         if restart:
             self.reset_state()
-        self._t_last = float(t)
+        self._t_last, self._q_last, self._dq_last = float(t), q, dq
         if self._state is None:
             self._state = self._recurrent.initial_state(1)
         y, self._state = self._recurrent.step(x[None, :], self._state)
@@ -269,112 +288,9 @@ class TwoStepEstimator:
     def step_many_joint(estimators: list[TwoStepEstimator],
                         batches: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]
                         ) -> list[list[EstimatorOutput]]:
-        """:meth:`step_many` for several streams whose estimators share one step-1 kernel
-        (:meth:`share_step1`: arms of one daemon), their recurrences stepped together: at
-        each step the streams are one batch, so the ~1 MB of step-1 weights are read once for
-        all of them. Equal to each stream's own :meth:`step_many` up to float32 rounding.
-
-        Args:
-            estimators: B estimators sharing one step-1 kernel, each its own stream.
-            batches: per estimator ``(t, q, dq, tau_measured)`` as in :meth:`step_many`
-                (lengths may differ, zero included).
-        Raises:
-            ConfigError: estimators that do not share their step-1 kernel.
-            DataError: wrong shapes or non-finite values (nothing is estimated then).
-        """
-        kernel = estimators[0]._recurrent
-        if any(e._recurrent is not kernel for e in estimators):
-            raise ConfigError("step_many_joint needs estimators sharing one step-1 kernel")
-        if len(kernel.layers) != 1:            # stacked layers (Xfer): one stream at a time
-            return [e.step_many(*b) for e, b in zip(estimators, batches)]
-        if all(len(b[0]) == 1 for b in batches):
-            return TwoStepEstimator._step_one_each(estimators, batches)
-        checked = [e._check_many(*b) for e, b in zip(estimators, batches)]
-        layer = kernel.layers[0]
-        lengths = [len(c[0]) for c in checked]
-        steps, width = max(lengths, default=0), len(estimators)
-        g, hid = layer.n_groups, layer.hidden_size
-        proj = np.zeros((steps, width, g, 4 * hid), dtype=kernel.dtype)
-        for i, (c, n) in enumerate(zip(checked, lengths)):
-            if n:
-                xp = c[2].astype(kernel.dtype) @ layer.weight_x
-                xp += layer.bias_flat
-                proj[:n, i] = xp.reshape(n, g, -1)
-        h = np.zeros((g, width, hid), dtype=kernel.dtype)
-        cell = np.zeros_like(h)
-        for i, e in enumerate(estimators):
-            if e._state is not None:
-                h[:, i], cell[:, i] = e._state[0][:, 0], e._state[1][:, 0]
-        restart = np.zeros((steps, width), dtype=bool)
-        active = np.zeros((steps, width), dtype=bool)
-        for i, (c, n) in enumerate(zip(checked, lengths)):
-            restart[:n, i], active[:n, i] = c[4], True
-        out = np.empty((steps, g, width, hid), dtype=kernel.dtype)
-        for k in range(steps):
-            if restart[k].any():
-                h[:, restart[k]] = 0.0
-                cell[:, restart[k]] = 0.0
-            h_new, c_new = layer.step_projected(proj[k].transpose(1, 0, 2), h, cell)
-            if not active[k].all():                  # a stream with fewer samples waits
-                idle = ~active[k]
-                h_new[:, idle], c_new[:, idle] = h[:, idle], cell[:, idle]
-            h, cell = h_new, c_new
-            out[k] = h
-        results = []
-        for i, (e, c, n) in enumerate(zip(estimators, checked, lengths)):
-            if n == 0:
-                results.append([])
-                continue
-            e._state = (np.ascontiguousarray(h[:, i:i + 1]), np.ascontiguousarray(cell[:, i:i + 1]))
-            step1 = kernel.head(out[:n, :, i, :].transpose(1, 0, 2)).astype(np.float64)
-            results.append(e._finish_many(c[0], c[1], c[2], c[3], c[4], step1))
-        return results
-
-    @staticmethod
-    def _step_one_each(estimators: list[TwoStepEstimator],
-                       batches: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]
-                       ) -> list[list[EstimatorOutput]]:
-        """:meth:`step_many_joint` when every stream has one sample (arms at the same rate,
-        each sample handled as it comes): the streams' inputs checked, projected, stepped and
-        read out as one (B, ...) batch, without the per-stream bookkeeping of runs."""
-        kernel = estimators[0]._recurrent
-        layer = kernel.layers[0]
-        try:
-            t = np.array([float(b[0][0]) for b in batches])
-            q = np.array([b[1] for b in batches], dtype=np.float64).reshape(-1, N_JOINTS)
-            dq = np.array([b[2] for b in batches], dtype=np.float64).reshape(-1, N_JOINTS)
-            tau = np.array([b[3] for b in batches], dtype=np.float64).reshape(-1, N_JOINTS)
-        except (TypeError, ValueError) as exc:
-            raise DataError(f"t must be (1,) and q, dq, tau_measured (1, 6) per stream: {exc}")
-        width = len(estimators)
-        if q.shape != (width, N_JOINTS) or dq.shape != q.shape or tau.shape != q.shape:
-            raise DataError(f"t must be (1,) and q, dq, tau_measured (1, 6) per stream; got "
-                            f"{q.shape}, {dq.shape}, {tau.shape} for {width} streams")
-        x = np.concatenate([q, dq], axis=1)                                   # (B, 12)
-        if not (np.isfinite(t).all() and np.isfinite(x).all() and np.isfinite(tau).all()):
-            raise DataError("joint state contains NaN or Inf")
-        g, hid = layer.n_groups, layer.hidden_size
-        h = np.zeros((g, width, hid), dtype=kernel.dtype)
-        cell = np.zeros_like(h)
-        restart = []
-        for i, e in enumerate(estimators):
-            last = e._t_last
-            fresh = last is None or not 0.0 < t[i] - last <= e.config.max_gap_s
-            restart.append(fresh)
-            if not fresh and e._state is not None:
-                h[:, i], cell[:, i] = e._state[0][:, 0], e._state[1][:, 0]
-        xp = x.astype(kernel.dtype) @ layer.weight_x
-        xp += layer.bias_flat
-        h, cell = layer.step_projected(xp.reshape(width, g, -1).transpose(1, 0, 2), h, cell)
-        step1 = kernel.head(h).astype(np.float64)                           # (B, 6)
-        results = []
-        for i, e in enumerate(estimators):
-            e._state = (np.ascontiguousarray(h[:, i:i + 1]),
-                        np.ascontiguousarray(cell[:, i:i + 1]))
-            results.append(e._finish_many(t[i:i + 1], q[i:i + 1], x[i:i + 1], tau[i:i + 1],
-                                          np.array(restart[i:i + 1]), step1[i:i + 1]))
-        return results
-
+        """Several streams sharing one step-1 kernel, stepped as one batch
+        (:func:`wrenchd.models.estimator.joint_streams.step_many_joint`)."""
+        return joint_streams.step_many_joint(estimators, batches)
     def _check_many(self, t, q, dq, tau_measured):
         """Validated ``(t, q, x = [q, dq], tau, restart)`` of a run of samples; ``restart``
         (N,) says where the state restarts (first sample, gaps, time not advancing)."""
@@ -393,15 +309,18 @@ class TwoStepEstimator:
         if n:
             max_gap = self.config.max_gap_s
             last = self._t_last
-            restart[0] = last is None or not 0.0 < t[0] - last <= max_gap
+            restart[0] = (last is None or not 0.0 < t[0] - last <= max_gap
+                          or self._jumped(float(t[0]), q[0], dq[0]))
             step = np.diff(t)
             restart[1:] = ~((step > 0.0) & (step <= max_gap))
+            if self._max_jump is not None and n > 1:
+                restart[1:] |= position_jumps(t, q, dq, self._max_jump)
         return t, q, x, tau_measured, restart
 
     def _finish_many(self, t, q, x, tau_measured, restart, step1) -> list[EstimatorOutput]:
         """Corr, external torque and wrench of a run of samples whose step 1 is known."""
         n = len(t)
-        self._t_last = float(t[-1])
+        self._t_last, self._q_last, self._dq_last = float(t[-1]), q[-1], x[-1, N_JOINTS:]
         if self._corr is not None:
             if n == 1:                                  # the common case, without the runs
                 if restart[0]:
@@ -446,7 +365,8 @@ class TwoStepEstimator:
         predicted = np.zeros((n, N_JOINTS))
         restarted = np.zeros(n, dtype=bool)
         x = np.concatenate([states.position, states.velocity], axis=1)
-        for seg in segments(states.t, self.config.max_gap_s):
+        for seg in segments(states.t, self.config.max_gap_s, states.position, states.velocity,
+                            self.config.max_jump):
             predicted[seg] = self.predict_torque(x[seg])
             restarted[seg.start] = True
         external = states.effort - predicted

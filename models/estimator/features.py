@@ -5,9 +5,9 @@ Forces on the da Vinci Research Kit with Two-Step Deep Learning" (arXiv 2012.014
 positions and velocities of all six joints. One feature row is ``[q1..q6, dq1..dq6]``:
 positions [rad, rad, m, rad, rad, rad] then velocities [rad/s, rad/s, m/s, ...].
 
-A stream is cut into segments wherever samples are missing (a gap longer than ``max_gap_s``)
-or time does not advance: recurrent state and history windows restart at each segment, in the
-streaming path and in the batch path alike.
+A stream is cut into segments wherever samples are missing (a gap longer than ``max_gap_s``),
+time does not advance or the positions jump (:func:`position_jumps`): recurrent state and
+history windows restart at each segment, in the streaming path and in the batch path alike.
 """
 
 from __future__ import annotations
@@ -31,23 +31,47 @@ def joint_features(position: np.ndarray, velocity: np.ndarray) -> np.ndarray:
     return np.concatenate([q, dq], axis=-1)
 
 
-def segment_starts(t: np.ndarray, max_gap_s: float) -> np.ndarray:
-    """Indices where a new segment starts: 0, and every sample after a gap.
+def position_jumps(t: np.ndarray, q: np.ndarray, dq: np.ndarray,
+                   max_jump: np.ndarray) -> np.ndarray:
+    """(N - 1,) True where a sample's position is further than ``max_jump`` (6,) [rad; m]
+    on some joint from where the velocities carried the previous one (trapezoid rule): a
+    splice of two streams, an encoder re-zeroed, a glitch; no arm moves so."""
+    dt = np.diff(np.asarray(t, dtype=np.float64))[:, None]
+    moved = np.diff(q, axis=0) - 0.5 * (dq[1:] + dq[:-1]) * dt
+    return (np.abs(moved) > max_jump).any(axis=1)
 
-    A gap is a time step longer than ``max_gap_s`` [s] or one that does not advance.
-    Returns a sorted int array whose first element is 0 (empty for an empty ``t``).
+
+def segment_starts(t: np.ndarray, max_gap_s: float, q: np.ndarray | None = None,
+                   dq: np.ndarray | None = None,
+                   max_jump: tuple[float, ...] | None = None) -> np.ndarray:
+    """Indices where a new segment starts: 0, and every sample after a gap or a jump.
+
+    A gap is a time step longer than ``max_gap_s`` [s] or one that does not advance; a jump
+    (with positions ``q`` and velocities ``dq``, (N, 6), and ``max_jump``) is
+    :func:`position_jumps`'. Returns a sorted int array whose first element is 0 (empty for an
+    empty ``t``).
+
+    >>> t = np.arange(6) * 0.005
+    >>> q = np.zeros((6, 6)); q[3:, 0] = 0.3                     # a 0.3 rad splice at sample 3
+    >>> segment_starts(t, 0.05).tolist(), segment_starts(t, 0.05, q, 0 * q, (0.05,) * 6).tolist()
+    ([0], [0, 3])
     """
     t = np.asarray(t, dtype=np.float64)
     if t.size == 0:
         return np.zeros(0, dtype=np.int64)
     dt = np.diff(t)
-    breaks = np.flatnonzero((dt > max_gap_s) | (dt <= 0.0)) + 1
-    return np.concatenate([[0], breaks]).astype(np.int64)
+    cut = (dt > max_gap_s) | (dt <= 0.0)
+    if max_jump is not None and q is not None and dq is not None:
+        cut |= position_jumps(t, np.asarray(q, np.float64), np.asarray(dq, np.float64),
+                              np.asarray(max_jump, np.float64))
+    return np.concatenate([[0], np.flatnonzero(cut) + 1]).astype(np.int64)
 
 
-def segments(t: np.ndarray, max_gap_s: float) -> list[slice]:
-    """The gap-free segments of a series as slices, in order (see :func:`segment_starts`)."""
-    starts = segment_starts(t, max_gap_s)
+def segments(t: np.ndarray, max_gap_s: float, q: np.ndarray | None = None,
+             dq: np.ndarray | None = None,
+             max_jump: tuple[float, ...] | None = None) -> list[slice]:
+    """The segments of a series as slices, in order (see :func:`segment_starts`)."""
+    starts = segment_starts(t, max_gap_s, q, dq, max_jump)
     stops = np.append(starts[1:], len(t))
     return [slice(int(a), int(b)) for a, b in zip(starts, stops)]
 

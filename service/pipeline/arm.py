@@ -234,6 +234,10 @@ class ArmPipeline:
         # the exact check decides): six Python floats add faster than NumPy checks six values
         if not math.isfinite(sum(out.wrench.tolist())) and not np.isfinite(out.wrench).all():
             return None, events + [self._error(t, "non_finite_output", "estimate not finite")]
+        if out.restarted and gap_s is None and self.counters.estimated and not (
+                events and events[-1].kind == EventKind.CLOCK_RESET):
+            self.counters.jumps += 1                   # the estimator restarted on a jump
+            events.append(Event(t, EventKind.JUMP, {"arm": self.arm}))
         index = self.line.estimated_at(t)
         self.counters.estimated += 1
         warming = not self.gate.calibrated          # before this sample: its last warm-up one
@@ -422,6 +426,7 @@ class ArmPipeline:
                       "mode": self.estimator.mode},
             "counters": {"received": c.received, "estimated": c.estimated, "errors": c.errors,
                          "error_kinds": dict(c.error_kinds), "gaps": c.gaps,
+                         "jumps": c.jumps,
                          "dropped": c.dropped, "offered": c.offered,
                          "discarded_onsets": c.discarded_onsets, "drifts": c.drifts,
                          "setup_changes": c.setup_changes,

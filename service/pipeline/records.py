@@ -15,6 +15,7 @@ class EventKind(StrEnum):
 
     ERROR = "error"
     GAP = "gap"
+    JUMP = "jump"
     CLOCK_RESET = "clock_reset"
     CALIBRATING = "calibrating"
     CALIBRATED = "calibrated"
@@ -87,6 +88,7 @@ class Counters:
     estimated: int = 0
     errors: int = 0
     gaps: int = 0
+    jumps: int = 0            # position jumps that restarted the estimator
     dropped: int = 0          # set by the daemon (ring buffer overflow)
     offered: int = 0          # samples given to the adaptation
     discarded_onsets: int = 0  # free-looking samples dropped because a contact began

@@ -85,7 +85,8 @@ class BatchedEstimator(TwoStepEstimator):
         self.effort = np.asarray(effort, dtype=np.float64)
         self.block = int(block)
         n = len(self.t)
-        starts = segment_starts(self.t, self.config.max_gap_s)
+        starts = segment_starts(self.t, self.config.max_gap_s, self.features[:, :N_JOINTS],
+                                self.features[:, N_JOINTS:], self.config.max_jump)
         self.restarted = np.zeros(n, dtype=bool)
         self.restarted[starts] = True
         self._n = n                                      # per-sample look-ups as Python lists

@@ -57,9 +57,39 @@ def test_the_gap_restart_matters(models_f64, free_space_session):
     fs, corr, _ = models_f64
     js = _with_gap(free_space_session)
     restarted = TwoStepEstimator(fs, corr).predict_batch(js).predicted_torque
-    carried = TwoStepEstimator(fs, corr, EstimatorConfig(max_gap_s=1.0)).predict_batch(js)
+    carried = TwoStepEstimator(fs, corr, EstimatorConfig(max_gap_s=1.0, max_jump=None)
+                               ).predict_batch(js)
     assert not carried.restarted[120]
     assert np.abs(restarted[120:130] - carried.predicted_torque[120:130]).max() > 1e-4
+
+
+def _spliced(session, n=300, at=150, by=0.3):
+    """The first ``n`` samples, the first joint's position moved ``by`` [rad] from ``at`` on:
+    two recordings played one after the other, or an encoder re-zeroed."""
+    js = session.joint_states.slice(0, n)
+    q = js.position.copy()
+    q[at:, 0] += by
+    return JointStates(js.t, q, js.velocity, js.effort)
+
+
+@pytest.mark.parametrize("mode", ["base", "corr"])
+def test_a_position_jump_restarts_streaming_and_batch_alike(mode, models_f64,
+                                                             free_space_session):
+    fs, corr, _ = models_f64
+    est = TwoStepEstimator(fs, corr if mode == "corr" else None)
+    js = _spliced(free_space_session)
+    batch = est.predict_batch(js)
+    streamed = _stream(est, js)
+    assert streamed["restarted"].nonzero()[0].tolist() == [0, 150]
+    np.testing.assert_array_equal(streamed["restarted"], batch.restarted)
+    np.testing.assert_allclose(streamed["predicted_torque"], batch.predicted_torque, atol=1e-10)
+    many = est.step_many(js.t[:200], js.position[:200], js.velocity[:200], js.effort[:200])
+    assert [o.restarted for o in many].index(True, 1) == 150
+    off = TwoStepEstimator(fs, None, EstimatorConfig(max_jump=None)).predict_batch(js)
+    assert not off.restarted[150]
+    # a jump under the bound is motion: the recording's own steps never restart
+    assert not TwoStepEstimator(fs).predict_batch(_spliced(free_space_session, by=0.01)
+                                                  ).restarted[1:].any()
 
 
 def test_reset_state_and_time_going_back_restart(models_f64, free_space_session):

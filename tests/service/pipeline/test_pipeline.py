@@ -9,6 +9,10 @@ from wrenchd.models.estimator.pretrained import load_pretrained
 from wrenchd.service.pipeline import ArmPipeline, PipelineConfig, PolicyConfig
 
 
+#: a position step no arm makes in one sample [rad, rad, m, rad, rad, rad]
+SPLICE = np.array([0.0, 0.4, 0.0, 0.0, 0.0, 0.0])
+
+
 @pytest.fixture(scope="module")
 def seal():
     return load_pretrained("seal")
@@ -50,6 +54,21 @@ def test_bad_samples_are_counted_events_and_never_estimated(seal, trocar):
     assert p.counters.error_kinds == {"invalid": 3, "duplicate": 1, "time_backwards": 1}
     est, _ = p.process(msg(trocar, 20))                 # the stream goes on
     assert est is not None and not est.restarted
+
+
+def test_a_position_jump_restarts_the_state_as_a_jump_event(seal, trocar):
+    p = ArmPipeline("PSM1", seal, PipelineConfig(policy=PolicyConfig(name="frozen")))
+    for i in range(50):
+        est, events = p.process(msg(trocar, i))
+        assert not events or i == 0
+    spliced = trocar.position[50].copy()
+    spliced[1] += 0.4                                   # 0.4 rad in one sample: a splice
+    est, events = p.process(msg(trocar, 50, position=spliced))
+    assert est.restarted and [e.kind for e in events] == ["jump"]
+    est, events = p.process(msg(trocar, 51, position=trocar.position[51] + spliced
+                                - trocar.position[50]))
+    assert not est.restarted and not events
+    assert p.status()["counters"]["jumps"] == 1 and p.status()["counters"]["gaps"] == 0
 
 
 def test_a_gap_restarts_the_recurrent_state(seal, trocar):
@@ -143,14 +162,16 @@ def test_arms_stepped_together_give_what_each_alone_gives(seal):
     """process_many_joint (three arms of one daemon sharing the step-1 kernel, their
     recurrences as one batch, each arm with its own number of queued samples, none
     included) against each arm's own process, sample by sample: equal to float32 rounding,
-    same refusals, events, restarts and gate verdicts (arm 2 gets a NaN and a gap, arm 3
-    starts late)."""
+    same refusals, events, restarts and gate verdicts (arm 1 jumps, arm 2 gets a NaN and a
+    gap, arm 3 starts late)."""
     sessions = [run_scenario("trocar", 3.0, s).joint_states for s in (4, 5, 6)]
     streams = [[msg(js, i) for i in range(len(js))] for js in sessions]
     streams[1][40] = msg(sessions[1], 40, velocity=np.full(6, np.nan))
     streams[1][300:] = [msg(sessions[1], i, t=sessions[1].t[i] + 0.2)
                         for i in range(300, len(sessions[1]))]
     streams[2] = streams[2][100:]
+    streams[0][200:] = [msg(sessions[0], i, position=sessions[0].position[i] + SPLICE)
+                          for i in range(200, len(sessions[0]))]
     config = PipelineConfig(policy=PolicyConfig(name="frozen"), calibration_s=0.5)
     alone = [ArmPipeline(f"PSM{k}", seal, config) for k in (1, 2, 3)]
     joint = [ArmPipeline(f"PSM{k}", seal, config) for k in (1, 2, 3)]
@@ -184,12 +205,14 @@ def test_arms_stepped_together_give_what_each_alone_gives(seal):
 def test_arms_stepped_together_one_sample_each(seal):
     """The daemon's usual case, each arm's samples handled as they come (one per arm per
     pass, the streams checked and stepped as one batch): what each arm's own process gives,
-    to float32 rounding, restarts after a gap and a refused NaN sample included."""
+    to float32 rounding, restarts after a gap and a jump and a refused NaN sample included."""
     sessions = [run_scenario("trocar", 1.0, s).joint_states for s in (4, 5, 6)]
     streams = [[msg(js, i) for i in range(len(js))] for js in sessions]
     streams[1][40] = msg(sessions[1], 40, velocity=np.full(6, np.nan))
     streams[2][120:] = [msg(sessions[2], i, t=sessions[2].t[i] + 0.2)
                         for i in range(120, len(sessions[2]))]
+    streams[0][150:] = [msg(sessions[0], i, position=sessions[0].position[i] + SPLICE)
+                          for i in range(150, len(sessions[0]))]
     config = PipelineConfig(policy=PolicyConfig(name="frozen"), calibration_s=0.5)
     alone = [ArmPipeline(f"PSM{k}", seal, config) for k in (1, 2, 3)]
     joint = [ArmPipeline(f"PSM{k}", seal, config) for k in (1, 2, 3)]
@@ -210,7 +233,7 @@ def test_arms_stepped_together_one_sample_each(seal):
                                            rtol=1e-4, atol=1e-5)
                 assert (a.free, a.restarted, a.index) == (b.free, b.restarted, b.index)
                 restarts += a.restarted
-    assert restarts == 4                   # each arm's first sample, and arm 3 after its gap
+    assert restarts == 5         # each arm's first sample, arm 3 after its gap, arm 1's jump
     assert [p.counters for p in alone] == [p.counters for p in joint]
 
 
