@@ -19,6 +19,7 @@ MODULES = (
     "wrenchd.service.pipeline.mechanisms",
     "wrenchd.models.estimator.estimator",
     "wrenchd.service.pipeline.arm",
+    "wrenchd.service.replay.detector",
 )
 
 

@@ -22,6 +22,7 @@ from wrenchd.service.pipeline import PipelineConfig
 from wrenchd.service.provenance import RunMeter, stamp
 from wrenchd.service.replay.policies import get_policy
 from wrenchd.service.replay.loop import replay
+from wrenchd.service.replay.detector import detector_table
 from wrenchd.service.replay.metrics import free_error_series, replay_metrics, true_runs
 from wrenchd.service.replay.output import nan_to_none
 from wrenchd.models.physics.effects.drift import drift_onsets
@@ -141,5 +142,6 @@ def run_compare(policies: list[str], sessions: list[str], out_dir: str | Path,
         if session.truth is not None:
             plot_session(out / f"{_slug(spec)}.png", spec, session, series)
     (out / "compare.json").write_text(json.dumps(nan_to_none(rows), indent=1, default=str) + "\n")
-    (out / "compare.md").write_text(table_markdown(rows))
+    (out / "compare.md").write_text(table_markdown(rows) + "\n## The gate as a detector\n\n"
+                                    + detector_table(rows))
     return rows

@@ -51,6 +51,13 @@ def after_seam(t: np.ndarray, session: Session) -> np.ndarray:
     return (i >= 0) & (t - seams[np.clip(i, 0, None)] < SEAM_SKIP_S)
 
 
+def true_runs(flags: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Start and end (exclusive) indices of the runs of True in the (N,) ``flags``."""
+    edges = np.flatnonzero(np.diff(np.r_[False, np.asarray(flags, dtype=bool), False]
+                                   .astype(np.int8)))
+    return edges[::2], edges[1::2]
+
+
 def setup_change_levels(t: np.ndarray, wrench: np.ndarray, sample: np.ndarray,
                         session: Session) -> list[dict[str, Any]]:
     """The free-motion tip force around each set-up change (see the module docstring).

@@ -15,7 +15,9 @@ norm), torques ``|T_est - T_ref|`` [N m]. References: the simulator's true tip w
 * ``contamination``: offered training samples that were truly in contact (all, and those
   offered after the calibration, which trains on every sample by design).
 * ``setup_changes`` (free-motion tip force around each set-up change) and ``contacts_found``
-  (contact episodes over 2 N found or missed): :mod:`wrenchd.service.replay.events_scored`.
+  (contact episodes over 2 N found or missed): :mod:`wrenchd.service.replay.events_scored`;
+  ``gate_detector`` (episodes found, detection delay, false alarms per minute):
+  :mod:`wrenchd.service.replay.detector`.
 * drift: for each set-up change the session announces (a step, or a ramp's start), the free-
   motion force error before (30 s) and after it, and the time until the 5 s rolling free-
   motion error is back within 10 % of the pre-change level (None: never).
@@ -30,7 +32,9 @@ import numpy as np
 from wrenchd.models.series import Session
 from wrenchd.service.replay.loop import ReplayResult
 from wrenchd.models.physics.effects.drift import drift_onsets
-from wrenchd.service.replay.events_scored import contact_detection, setup_change_levels
+from wrenchd.service.replay.detector import detector_scores
+from wrenchd.service.replay.events_scored import (contact_detection, setup_change_levels,
+                                                  true_runs)
 
 PRE_S, ROLL_S, RECOVER_FRACTION = 30.0, 5.0, 0.10
 #: ``gate_episodes``: contact episodes count above this peak true force [N]; this long
@@ -39,13 +43,6 @@ EPISODE_MIN_N, EPISODE_MARGIN_S = 1.0, 0.1
 #: ``gate_episodes``: the recall of flagging every episode from its first sample over each
 #: of these true forces [N]
 ONSET_FORCES_N = (0.3, 0.5, 1.0)
-
-
-def true_runs(flags: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Start and end (exclusive) indices of the runs of True in the (N,) ``flags``."""
-    edges = np.flatnonzero(np.diff(np.r_[False, np.asarray(flags, dtype=bool), False]
-                                   .astype(np.int8)))
-    return edges[::2], edges[1::2]
 
 
 def episode_scoring(t: np.ndarray, contact: np.ndarray, force_n: np.ndarray,
@@ -268,9 +265,10 @@ def replay_metrics(r: ReplayResult, session: Session) -> dict[str, Any]:
     else:
         m["contamination"] = {"offered": 0, "in_contact": 0, "fraction": None,
                               "in_contact_after_calibration": 0}
-    m["contacts_found"] = contact_detection(
-        r.t, ~r.free, np.linalg.norm(truth.external_wrench[r.sample, :3], axis=1), contact,
-        t0 + calib)
+    true_force = np.linalg.norm(truth.external_wrench[r.sample, :3], axis=1)
+    m["contacts_found"] = contact_detection(r.t, ~r.free, true_force, contact, t0 + calib)
+    m["gate_detector"] = detector_scores(r.t, contact, true_force, ~r.free, after,
+                                         [at for _, at, _ in drift_onsets(session)])
     ef = force_error_n(r, truth)
     m["drifts"] = [{"id": name, "end_s": end, **_recovery(r.t, ef, ~contact, start)}
                    for name, start, end in drift_onsets(session)]

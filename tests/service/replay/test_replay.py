@@ -17,6 +17,7 @@ from wrenchd.adapters.mcap_session import TOPIC_JOINT_STATES
 from wrenchd.adapters.mcap_session_reader import read_session
 from wrenchd.adapters.messages import encode_joint_state
 from wrenchd.models.errors import ConfigError
+from wrenchd.models.estimator.features import segment_starts
 from wrenchd.models.estimator.pretrained import load_pretrained
 from wrenchd.models.adaptation import AdaptationConfig
 from wrenchd.service.pipeline import ArmPipeline, PipelineConfig
@@ -236,7 +237,8 @@ def test_worker_adaptation_replays_the_inline_calls(fs, contact_session):
 
 def test_batched_step1_on_a_thread_equals_one_torch_call(fs, contact_session):
     """Step 1 computed on a thread in chunks (LSTM states carried) is, bit for bit, one
-    ``predict_sequence`` over each gap-free segment; the replay waits for rows it needs."""
+    ``predict_sequence`` over each segment (between gaps and jumps); the replay waits for
+    rows it needs."""
     js = contact_session.joint_states
     n = sum(STEP1_CHUNKS) + 300                           # every chunk size, then a repeat
     t = np.arange(n) / 200.0
@@ -250,8 +252,12 @@ def test_batched_step1_on_a_thread_equals_one_torch_call(fs, contact_session):
         est._wait_step1(n)
     finally:
         est.close()
-    want = np.concatenate([fs.predict_sequence(feats[:n // 2]),
-                           fs.predict_sequence(feats[n // 2:])]).astype(np.float32)
+    # the tiles' seams are position jumps: segments there too
+    starts = segment_starts(t, BASE.estimator.max_gap_s, feats[:, :6], feats[:, 6:],
+                            BASE.estimator.max_jump)
+    assert n // 2 in starts and len(starts) > 2
+    want = np.concatenate([fs.predict_sequence(feats[a:b]) for a, b in
+                           zip(starts, np.append(starts[1:], n))]).astype(np.float32)
     np.testing.assert_array_equal(est.step1, want)
     np.testing.assert_array_equal(first.step1_torque, want[0].astype(np.float64))
-    assert est.restarted[[0, n // 2]].all() and est.restarted.sum() == 2
+    assert est.restarted[starts].all() and est.restarted.sum() == len(starts)
