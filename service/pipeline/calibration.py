@@ -17,9 +17,11 @@ RMSE (floored by the gate's ``min_std``), judged from 5 s into the window on: a 
 in nearly every sample, a contact in some (the median would take a contact that fills more
 than half of the window's first seconds for a misfit; the lower quartile needs three
 quarters). Above ``mismatch_ratio`` on a joint, the step-1 model does not explain this arm
-there (a wrong checkpoint, a set-up it never saw). The guard says so (:attr:`CalibrationGuard.mismatch`) and that joint's scale
-follows the window's level without the bound, instead of the guard calling nearly every
-sample contact; the other joints, bounded as before, still see the contacts.
+there (a wrong checkpoint, a set-up it never saw): the guard says so
+(:attr:`CalibrationGuard.mismatch`). Over ``follow_ratio`` (lower) a joint's scale follows the
+window's level without the bound, instead of the guard calling nearly every sample contact
+and keeping from step 2 the residual it is there to learn; the other joints, bounded, still
+see the contacts.
 """
 
 from __future__ import annotations
@@ -130,7 +132,8 @@ class CalibrationGuard:
         scale = np.maximum(self.config.robust_factor * level, self.seed_scale)
         bounded = np.minimum(scale, self.gate.config.max_growth * self.seed_scale)
         if self.ratios is not None:         # a joint the model does not fit: its own level
-            bounded = np.where(self.ratios > self.config.mismatch_ratio, scale, bounded)
+            follow = min(self.config.follow_ratio, self.config.mismatch_ratio)
+            bounded = np.where(self.ratios > follow, scale, bounded)
         self.gate.rescale(bounded)
 
     def judge(self, index: int, t: float, residual: np.ndarray) -> GateDecision:

@@ -103,6 +103,13 @@ class CalibrationGuardConfig(BaseModel):
                     "gate's min_std): the step-1 model does not fit the arm there "
                     "('model_mismatch' event, status), and the guard's scale on that joint "
                     "follows the window's level")
+    follow_ratio: float = Field(
+        default=3.0, gt=1.0,
+        description="a joint whose fit ratio (as for mismatch_ratio) is over this: the guard's "
+                    "scale there follows the window's level without the max_growth bound, "
+                    "which would hold it under about two thirds of that level (motion or a "
+                    "set-up the step-1 model never saw: the residual step 2 is there to learn "
+                    "would otherwise be called contact and kept from it)")
     borderline_trains: bool = Field(
         default=True,
         description="refuse: a sample the guard calls free but over the gate's train_sigma "

@@ -205,7 +205,7 @@ def test_misfit_joint_is_a_mismatch_and_follows_its_own_level():
     assert guard.ratios[2] > 15.0 and guard.ratios[[0, 1, 3, 4, 5]].max() < 2.0
     assert free[:1000].mean() < 0.05 and free[2000:].mean() > 0.95
     # without the verdict the guard calls everything contact
-    starved = _free_flags(_guard(mismatch_ratio=1e6), residual.copy())
+    starved = _free_flags(_guard(mismatch_ratio=1e6, follow_ratio=1e6), residual.copy())
     assert starved[2000:].mean() < 0.05
     # a contact on the shoulder joints is still seen in the mismatched window
     contact = residual.copy()
@@ -214,6 +214,26 @@ def test_misfit_joint_is_a_mismatch_and_follows_its_own_level():
     assert _free_flags(_guard(), contact)[2020:2600].mean() < 0.05
     guard.start()                                    # a new calibration: a new verdict
     assert not guard.mismatch and guard.ratios is None and guard.ratio is None
+
+
+def test_a_joint_the_model_does_not_fit_follows_its_level_without_a_mismatch():
+    """Unseen motion or a set-up the step-1 model never saw: 10 x the held-out RMSE on the
+    wrist, under mismatch_ratio, over follow_ratio. The guard follows that level instead of
+    keeping the residual step 2 must learn from it; a contact on the shoulder is still seen."""
+    rng = np.random.default_rng(4)
+    n = 4000
+    residual = HELD_OUT * _smooth(rng, n)
+    residual[:, 3:] *= 10.0
+    guard = _guard()
+    free = _free_flags(guard, residual.copy())
+    assert not guard.mismatch and 3.0 < guard.ratios[3:].min() and guard.ratio < 15.0
+    assert free[2000:].mean() > 0.95
+    bounded = _free_flags(_guard(follow_ratio=1e6), residual.copy())
+    assert bounded[2000:].mean() < 0.5
+    contact = residual.copy()
+    contact[2000:2600, 0] += 2.0
+    contact[2000:2600, 1] += 1.0
+    assert _free_flags(_guard(), contact)[2020:2600].mean() < 0.05
 
 
 def test_guard_scale_comes_from_the_step1_checkpoint():
