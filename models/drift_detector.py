@@ -52,7 +52,18 @@ class DriftConfig(BaseModel):
 
 
 class ResidualDriftDetector:
-    """Page-Hinkley or ADWIN on the normalised free-motion residual level."""
+    """Page-Hinkley or ADWIN on the normalised free-motion residual level.
+
+    A residual at its noise floor for a minute, then three times it (200 Hz samples): one
+    detection, a few seconds after the step.
+
+    >>> detector = ResidualDriftDetector(floor=np.full(6, 0.1))
+    >>> rng = np.random.default_rng(0)
+    >>> times = np.arange(120 * 200) / 200                   # two minutes [s]
+    >>> scale = np.where(times < 60, 0.1, 0.3)               # the residual's std [N m]
+    >>> [float(t) for t, s in zip(times, scale) if detector.update(t, rng.normal(0, s, 6))]
+    [63.345]
+    """
 
     def __init__(self, floor: np.ndarray, config: DriftConfig | None = None) -> None:
         self.config = config if config is not None else DriftConfig()

@@ -20,6 +20,8 @@ MODULES = (
     "wrenchd.models.estimator.estimator",
     "wrenchd.service.pipeline.arm",
     "wrenchd.service.replay.detector",
+    "wrenchd.models.drift_detector",
+    "wrenchd.models.adaptation.adapter",
 )
 
 

@@ -1,66 +1,23 @@
 """Lifelong adaptation of the correction net (step 2) on gated free-motion samples.
 
-:class:`Adapter` is the deterministic core, used the same way by the daemon (in a worker
-process, :mod:`wrenchd.service.runtime.worker`) and by replay (inline, in simulated time):
+Step 2 of the two-step estimator (Wu, Yilmaz, Kazanzides and Tumerdem, "Estimation of Trocar
+and Tool Interaction Forces on the da Vinci Research Kit with Two-Step Deep Learning") learns
+what the cannula seal and the body wall add to the joint torques [N m; N on insertion]. Those
+change during surgery (insufflation pressure, instrument swaps), so the net keeps learning on
+the free motion the gate lets through. :class:`Adapter` is the deterministic core of that
+learning, used alike by the daemon (in :mod:`wrenchd.service.runtime.worker`'s process) and
+by replay (inline, in simulated time), so a replay proves something about the daemon.
 
-* :meth:`Adapter.add` takes free-motion samples (``Corr`` input window, step-1 torque,
-  measured torque). Every ``holdout_every``-th sample goes to a held-out set of *recent* free
-  motion; the others to a replay buffer that mixes a ring of recent samples with a reservoir
-  sample of older ones.
-* :meth:`Adapter.round` fine-tunes a *copy* of the current ``Corr`` for ``round_steps`` Adam
-  steps on mini-batches drawn ``recent_fraction`` from the recent ring and the rest from the
-  reservoir (L2 weight decay as the paper's Corr recipe), scores candidate and current net on
-  the held-out set, and accepts the candidate only if its error is lower by
-  ``min_improvement``: a swap never increases validation error. Accepted nets get the next
-  version number.
-* :meth:`Adapter.on_drift` makes adaptation eager for ``eager_s``: rounds come more often and
-  the held-out set restarts with samples after the drift (the old regime is no longer what
-  "recent" means). The reservoir is kept: emptying it, and re-learning the gate's scale, makes
-  the insufflation recovery worse and lets more contact through. With ``drift_carry_over``
-  (the default) a drift is also taken for an unannounced pressure change at its detection
-  (less ``drift_lead_s``), and the buffer is carried over as below: the body wall tracker
-  measures the stiffness on either side, so a drift that changed nothing shifts the rows by
-  about nothing. A drift detected while the rounds are still eager for the latest change
-  (announced or detected; its ``eager_s``, extended by its first carry-over) is taken for that
-  change's, not a new one: a segment started then would be fitted on a bin or two of free
-  motion, several times off the true stiffness, and carry the whole buffer and held-out set
-  by the difference (the net then ends newtons off, the gate calls all free motion contact,
-  and nothing can train it back).
-* :meth:`Adapter.on_setup_change` is told of a set-up change (the daemon's ``setup`` key):
-  adaptation gets eager as after a drift, and the buffer is *carried over*: the body wall's
-  stiffness is tracked per bin of sample time on the offered samples
-  (:class:`~wrenchd.models.body_wall_tracker.BodyWallTracker`), and before every round each buffered
-  sample from an earlier segment gets ``(k_now - k_then) g(q)`` added to its measured yaw and
-  pitch torques (``g``: the wall's torque per N/m). The shift follows the estimates as bins
-  close; each row remembers what it was given. That is a change of ``kind`` ``"pressure"``
-  (:data:`SETUP_KINDS`), the default.
-* A change of ``kind`` ``"instrument"`` (a tool swapped: a new payload on the arm) cannot be
-  carried over: the old instrument's samples describe a mass the arm no longer carries, and no
-  tracked quantity maps them onto the new one. The replay buffer, the held-out set and the
-  body wall tracker (its stiffnesses were fitted on the old instrument's residuals) restart on
-  the new instrument's samples; the serving ``Corr`` is kept as the starting point of the
-  eager rounds (what it learnt of step 1's misfit still holds) and, until one is accepted on
-  the new held-out set, as the serving net.
-
-Output-layer refit (``refit_shrink`` > 0). A round's few dozen Adam steps on mixed batches
-move the net only part of the way towards a new regime (an insufflation pressure step shifts
-the joint torques at once). After them, the net's output layer (hidden -> 6 and its bias) is
-re-solved in closed form on the recent ring alone, a ridge regression shrunk towards the
-layer's current weights: ``W = argmin |H W - T|^2 + lam |W - W_cur|^2`` with ``H`` the hidden
-features ``[relu(x W1 + b1), 1]`` of the ring's rows, ``T`` their targets and
-``lam = refit_shrink * trace(H^T H) / (hidden + 1)``. The hidden features, learned over the
-whole history, are kept; only their read-out follows the recent regime, and the shrinkage
-keeps it from over-fitting a ring that covers a small part of the workspace. The candidate is
-still scored on the held-out set, so a refit that does not help is not swapped in (the
-figures are in docs/results.md).
-
-The first net is a fresh ``Corr`` whose output layer is zero: it changes nothing until a round
-has been accepted. Its input and torque normalisation is the step-1 model's (fitted on the
-whole free-space workspace), so a net trained on a few seconds of motion does not see inputs
-many "standard deviations" away when the arm moves elsewhere; without it, the first
-``min_train_samples`` samples set it.
+Every round fine-tunes a *copy* of the serving ``Corr`` (Adam with L2 weight decay, the
+paper's Corr recipe) on a replay buffer that mixes recent samples with a reservoir of older
+ones, then scores candidate and serving net on held-out recent free motion: a swap never
+increases validation error. Set-up changes, announced or taken from a detected drift, make the
+rounds eager; a pressure change carries the buffer over to the new body wall stiffness
+(:class:`~wrenchd.models.body_wall_tracker.BodyWallTracker`), an instrument change restarts
+it. Units: sample times and the rounds' clock in seconds; validation errors in units of the
+step-1 model's torque standard deviation. The mechanisms, with their settings, are in
+docs/architecture.md ("Lifelong adaptation"); their measured effect in docs/results.md.
 """
-
 
 from __future__ import annotations
 
@@ -98,7 +55,29 @@ def _rmse_mean(pred: np.ndarray, target: np.ndarray) -> float:
 
 
 class Adapter:
-    """Replay buffer, fine-tuning rounds, validation and versions (see the module docstring)."""
+    """Replay buffer, fine-tuning rounds, validation and versions of the correction net.
+
+    :meth:`add` offers free-motion samples, :meth:`round` runs a round when one is due,
+    :meth:`on_drift` and :meth:`on_setup_change` are told of changes. The first net is a fresh
+    ``Corr`` with a zero output layer (it changes nothing until a round is accepted),
+    normalised as ``normalisation`` (the step-1 model's, :func:`normalisation_of`: fitted on
+    the whole workspace) or else on the first ``min_train_samples`` samples.
+
+    A step-1 model that misses 0.5 N m on the first joint, learnt in one round:
+
+    >>> rng = np.random.default_rng(0)
+    >>> step1 = rng.normal(size=(1000, 6))
+    >>> adapter = Adapter()
+    >>> adapter.add(rng.normal(size=(1000, 10, 12)), step1, step1 + [0.5, 0, 0, 0, 0, 0],
+    ...             t=np.arange(1000) / 200)
+    >>> adapter.recent.n, len(adapter.holdout)          # every 5th sample is held out
+    (800, 200)
+    >>> result = adapter.round(5.0)
+    >>> result.accepted, result.version, result.val_after < result.val_before / 5
+    (True, 1, True)
+    >>> adapter.round(5.1) is None                     # the next one is due interval_s later
+    True
+    """
 
     def __init__(self, config: AdaptationConfig | None = None,
                  corr: Corr | None = None, version: int = 0,
@@ -134,7 +113,10 @@ class Adapter:
     def add(self, windows: np.ndarray, step1: np.ndarray, measured: np.ndarray,
             t: np.ndarray | None = None) -> None:
         """Offer free-motion samples: (n, W, 12) windows, (n, 6) step-1 and measured torques,
-        and their sample times (n,) [s] (None: unknown; such samples are never carried over)."""
+        and their sample times (n,) [s] (None: unknown; such samples are never carried over).
+        Every ``holdout_every``-th sample goes to the held-out set of recent free motion, the
+        others to a ring of ``recent_size`` recent samples; what leaves the ring enters a
+        reservoir sample of ``reservoir_size`` older ones."""
         windows = np.asarray(windows, dtype=np.float32).reshape(len(step1), -1)
         self.add_rows(np.concatenate([windows, np.asarray(step1, np.float32),
                                       np.asarray(measured, np.float32)], axis=1), t)
@@ -197,10 +179,16 @@ class Adapter:
     def on_setup_change(self, t: float, now: float | None = None,
                         kind: str = "pressure") -> None:
         """The set-up changed at sample time ``t`` [s] (announced): adapt eagerly from ``now``
-        (the rounds' clock; default ``t``). A ``"pressure"`` change (the insufflator's) carries
-        the buffer over to the new set-up, the held-out set too; an ``"instrument"`` change
-        forgets every buffered and held-out sample and restarts the body wall tracker (module
-        docstring).
+        (the rounds' clock; default ``t``), for ``eager_s``.
+
+        A ``"pressure"`` change (the insufflator's) carries the buffer over, the held-out set
+        too: the tracker fits the body wall's stiffness ``k`` [N/m] per bin of sample time, and
+        before every round each row from an earlier segment gets ``(k_now - k_then) g(q)``
+        added to its measured yaw and pitch torques (``g``: the wall's torque per N/m), which
+        follows the estimates as bins close. An ``"instrument"`` change (a new payload on the
+        arm) cannot be carried over: no tracked quantity maps the old instrument's samples onto
+        the new one, so the buffer, the held-out set and the tracker restart; the serving
+        ``Corr`` is kept as the eager rounds' start and serves until one is accepted.
 
         Raises:
             ValueError: ``kind`` is not one of :data:`SETUP_KINDS`.
@@ -260,9 +248,11 @@ class Adapter:
 
     def on_drift(self, t: float, now: float | None = None) -> None:
         """A drift detected at sample time ``t`` [s]: adapt eagerly from ``now`` (the rounds'
-        clock; default ``t``), forget the held-out samples, and (``drift_carry_over``) take
-        it for an unannounced change at ``t - drift_lead_s`` unless the rounds are still
-        adapting to the latest change."""
+        clock; default ``t``), forget the held-out samples (the old regime is no longer what
+        "recent" means) and keep the reservoir. With ``drift_carry_over`` it is taken for an
+        unannounced pressure change at ``t - drift_lead_s`` unless the rounds are still eager
+        for the latest change (then it is that change's: a segment started there would be
+        fitted on a bin or two of free motion and carry the whole buffer by its error)."""
         now = t if now is None else now
         within = now < self._change_until    # still adapting to the latest change
         self._eager_until = now + self.config.eager_s
@@ -386,8 +376,13 @@ class Adapter:
         return scaling
 
     def _refit_output(self, tuner: CorrFineTuner) -> None:
-        """Re-solve ``tuner``'s output layer on the recent ring's rows, in place: the ridge
-        regression towards the current layer of the module docstring, solved in float64."""
+        """Re-solve ``tuner``'s output layer (hidden -> 6 and its bias) on the recent ring's
+        rows, in place, in float64: ``W = argmin |H W - T|^2 + lam |W - W_cur|^2`` with ``H``
+        the features ``[relu(x W1 + b1), 1]``, ``T`` the targets and
+        ``lam = refit_shrink * trace(H^T H) / (hidden + 1)``. A round's few Adam steps move the
+        net only part of the way to a new regime; the hidden features, learnt over the whole
+        history, stay and their read-out follows the recent one, shrunk towards the current
+        layer so that a ring covering little of the workspace is not over-fitted."""
         ring = self.recent
         if ring.n == 0:
             return
@@ -403,7 +398,10 @@ class Adapter:
         b2[...] = solved[-1]
 
     def round(self, t: float) -> RoundResult | None:
-        """One fine-tuning round at time ``t`` [s] if due; None otherwise."""
+        """One round at ``t`` [s] if due, else None: ``round_steps`` Adam steps on batches
+        drawn ``recent_fraction`` from the recent ring, the rest from the reservoir, then
+        :meth:`_refit_output`; the candidate serves, as the next version, only if its held-out
+        error is lower by ``min_improvement``."""
         if not self.due(t):
             return None
         c = self.config
