@@ -1,45 +1,22 @@
 """The body wall's stiffness, tracked from free motion, and carried over at a set-up change.
 
-Why: after an announced set-up change (the insufflator's pressure set higher, say), the
-adaptation's replay buffer still holds the old set-up's torques; every mini-batch pulls the
-correction net back towards them (docs/replay-and-policies.md, "What limits recovery"). The
-body wall at the port is the effect insufflation changes
-(:mod:`wrenchd.models.physics.effects.body_wall`): a lateral spring on the shaft whose
-stiffness ``k`` [N/m] rises with the pressure. Its torque on yaw and pitch is ``k g(q)``, with
-``g`` the torque per N/m at the incision point (plus a damping term ``c h(q, dq)``). So once
-the stiffness before and after the change is known, every older buffered sample can be *carried
-over*: its measured yaw and pitch torques get ``(k_after - k_before) g(q)`` added, and the
-whole buffer speaks for the new set-up.
+After a set-up change (the insufflator's pressure set higher, say) the adaptation's replay
+buffer still holds the old set-up's torques, and every mini-batch pulls the correction net back
+towards them (docs/replay-and-policies.md, "What limits recovery"). The body wall at the port is
+the effect insufflation changes (:mod:`wrenchd.models.physics.effects.body_wall`): a lateral
+spring on the shaft whose stiffness ``k`` [N/m] rises with the pressure. Its torque on yaw and
+pitch is ``k g(q)`` [N m], with ``g`` the torque per N/m at the incision point, plus a damping
+term ``c h(q, dq)``. Once the stiffness before and after the change is known, every older
+buffered sample is *carried over*: its measured yaw and pitch torques get
+``(k_after - k_before) g(q)`` added, and the whole buffer speaks for the new set-up.
 
-How ``k`` is measured: on the *step-1* residual (measured torque minus the free-space network's
-prediction), which still holds the whole body wall (the correction net's residual does not: it
-has absorbed most of it, and what is left is dominated by the net's misfit). Per ``bin_s`` bin
-of sample time, yaw and pitch residuals of the free-motion samples offered for training are
-regressed on ``[g, h, 1_yaw, 1_pitch]`` (stiffness, damping, one offset per joint: the
-free-space net's local bias); the bin's ``k`` is the first coefficient. A segment (the time
-between announced changes) is worth one fit over its bins, stiffness and damping shared and
-offsets per bin, so a bin that saw little free motion (the gate calls much of the motion just
-after a change contact) weighs little. The bins' level is biased by the free-space net's
-misfit, their step much less, and the carry-over uses only the step.
-
-The change must be *announced* (:meth:`BodyWallTracker.announce`: the daemon's ``setup``
-key). Finding it from the series alone does not work: bins vary with the workspace by as
-much as the step, so a search for it raises false alarms on unchanged sessions and finds real
-changes tens of seconds late.
-
-Samples are kept as they come and binned in batches (:data:`FLUSH_ROWS`, and before anything
-reads or changes the bins): the pipeline offers a few rows at a time, and the body wall's
-regressors cost about as much for three rows as for a thousand.
-
-A notice should come before the samples after its time reach the tracker (the pipeline's
-delay line gives it a few seconds). One that comes later, or stamped in the past, drops the
-old segment's bins that reach past its time (they mixed the two set-ups); a notice older than
-an earlier one moves the later segments up by one.
-
-Pure: arrays in, arrays out. The incision point is a setting, by default the body wall
-effect's (``BodyWallParams.incision_m``), which on the simulator is the truth. An incision
-point a few mm off does little harm: the stiffness fit absorbs much of the error. On a real
-set-up it comes from the port placement or from the discrepancy workflow.
+:class:`BodyWallTracker` measures ``k`` per bin of sample time on the step-1 residual of the
+free motion offered for training, and the change needs to be *announced*
+(:meth:`BodyWallTracker.announce`: the daemon's ``setup`` key, or a detected drift that the
+adapter takes for one). Pure: arrays in, arrays out. The incision point is a setting
+(:class:`BodyWallTrackerConfig`), by default the body wall effect's
+(``BodyWallParams.incision_m``), which on the simulator is the truth; on a real set-up it
+comes from the port placement or from the discrepancy workflow.
 """
 
 from __future__ import annotations
@@ -57,7 +34,7 @@ from wrenchd.models.physics.effects.body_wall import BodyWall, BodyWallParams
 #: joints the body wall acts on (0-based): outer yaw and pitch
 WALL_JOINTS = (0, 1)             # adjacent: the adapter takes them as a slice
 _N_COLS = 4                      # stiffness, damping, offset yaw, offset pitch
-#: samples kept before they are binned (module docstring)
+#: samples kept before they are binned (:class:`BodyWallTracker`)
 FLUSH_ROWS = 2048
 
 
@@ -95,6 +72,23 @@ class BodyWallTracker:
     Samples are added with their sample times; a bin is closed once a sample at least one bin
     later arrives (samples come in time order, give or take the pipeline's delay line). The
     segment of a time is the number of announced changes at or before it.
+
+    ``k`` is fitted on the *step-1* residual (measured torque minus the free-space network's
+    prediction), which still holds the whole body wall; the correction net's residual does not
+    (it has absorbed most of it, and its own misfit dominates what is left). Per ``bin_s`` bin,
+    the yaw and pitch residuals are regressed on ``[g, h, 1_yaw, 1_pitch]`` (stiffness,
+    damping, one offset per joint: the free-space net's local bias); the bin's ``k`` is the
+    first coefficient. A segment (the time between announced changes) is one fit over its
+    bins, stiffness and damping shared and offsets per bin, so a bin that saw little free
+    motion weighs little. The bins' level is biased by the free-space net's misfit, their step
+    much less, and the carry-over uses only the step.
+
+    Samples are kept as they come and binned in batches (:data:`FLUSH_ROWS`, and before
+    anything reads or changes the bins): the pipeline offers a few rows at a time, and the
+    regressors cost about as much for three rows as for a thousand. A notice should come
+    before the samples after its time (the pipeline's delay line gives it a few seconds); one
+    that comes later, or stamped in the past, drops the old segment's bins that reach past its
+    time, and one older than an earlier notice moves the later segments up by one.
     """
 
     def __init__(self, config: BodyWallTrackerConfig | None = None) -> None:
