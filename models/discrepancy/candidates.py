@@ -1,33 +1,18 @@
 """Candidate effects as groups of physically meaningful regressor columns.
 
-Each candidate is an effect of the library written as columns ``X`` (N, 6, k): the joint
-torque per unit of each of its parameters, so the residual ``r ~ X beta`` is linear and
-``beta`` maps back to the effect's parameters (``Candidate.to_params``). Columns are built on
-the *measured* motion (encoder positions, zero-phase velocity, smoothed acceleration).
+The discrepancy workflow names the effect a model lacks by regressing its residual on what
+each missing effect would add. Each candidate is an effect of the library written as columns
+``X`` (N, 6, k): the joint torque [N m; N on insertion] per unit of each of its parameters, so
+the residual ``r ~ X beta`` is linear and ``beta`` maps back to the effect's parameters
+(``Candidate.to_params``); shapes that are not linear in a parameter (Stribeck velocities,
+the seal's presliding travel and static ratio) are profiled over a grid. Columns are built on
+the *measured* motion (encoder positions, zero-phase velocity, smoothed acceleration). The
+effects and their columns are listed at :func:`build_candidates`.
 
-=====================  ======================================================  ============
-effect                 columns                                                 parameters
-=====================  ======================================================  ============
-coulomb_friction       ``tanh(dq_j / 1e-3)`` on joint j, j = 1..6              fc (6)
-viscous_friction       ``dq_j`` on joint j                                     fv (6)
-stribeck_friction      ``exp(-(dq_j/vs_j)^2) sign(dq_j)``, vs_j profiled       fs (6), vs
-joint_offset           1 on joint j                                            offset (6)
-spring                 ``q_j`` and 1 on roll and wrist (rest = -c / k)         stiffness, rest
-seal_friction          insertion and roll: LuGre bristle force per unit level   fc + fs_excess,
-                       (presliding travel and static ratio profiled), and       sigma2 (insertion);
-                       ``dq`` on insertion                                      sigma0 from travel
-body_wall              port stiffness and damping torques, default incision    k, damping
-payload_mass           link 2 (parallelogram): first moments ``m c`` (3        mass_kg,
-                       columns); link 6 (tip): point mass per kg at its origin  position_m
-cable_coupling         ``C^T e_i tanh(m_i / 1e-3)``, ``C^T e_i m_i``, m = C dq   motor_fc, motor_fv
-drift                  ``(t - t0) / 3600 * d tau_E / d log p`` for each effect  rate_per_hour
-                       E of the model and its level parameter p
-=====================  ======================================================  ============
-
-Not candidates: ``external_contact`` (a tip wrench during contact episodes; free-motion
-data has none, and its anchor and timing are not functions of the motion) and
-``inertial_delta`` (re-identifying the rigid body would absorb a payload or a spring into
-the base parameters: the discrepancy workflow keeps the given model fixed and explains what
+Not candidates (:data:`NOT_CANDIDATES`): ``external_contact`` (a tip wrench during contact
+episodes; free-motion data has none, and its anchor and timing are not functions of the
+motion) and ``inertial_delta`` (re-identifying the rigid body would absorb a payload or a
+spring into the base parameters: the workflow keeps the given model fixed and explains what
 it leaves).
 """
 
@@ -320,7 +305,26 @@ def _drifts(motion: Motion, model: PhysicsModel, floor: np.ndarray) -> list[Cand
 
 def build_candidates(motion: Motion, model: PhysicsModel, residual: np.ndarray,
                      floor: np.ndarray, regressor: np.ndarray | None = None) -> list[Candidate]:
-    """Every candidate effect for this motion and model.
+    """Every candidate effect for this motion and model:
+
+    =====================  ======================================================  ============
+    effect                 columns                                                 parameters
+    =====================  ======================================================  ============
+    coulomb_friction       ``tanh(dq_j / 1e-3)`` on joint j, j = 1..6              fc (6)
+    viscous_friction       ``dq_j`` on joint j                                     fv (6)
+    stribeck_friction      ``exp(-(dq_j/vs_j)^2) sign(dq_j)``, vs_j profiled       fs (6), vs
+    joint_offset           1 on joint j                                            offset (6)
+    spring                 ``q_j`` and 1 on roll and wrist (rest = -c / k)         stiffness, rest
+    seal_friction          insertion and roll: LuGre bristle force per unit level   fc + fs_excess,
+                           (presliding travel and static ratio profiled), and       sigma2 (insertion);
+                           ``dq`` on insertion                                      sigma0 from travel
+    body_wall              port stiffness and damping torques, default incision    k, damping
+    payload_mass           link 2 (parallelogram): first moments ``m c`` (3        mass_kg,
+                           columns); link 6 (tip): point mass per kg at its origin  position_m
+    cable_coupling         ``C^T e_i tanh(m_i / 1e-3)``, ``C^T e_i m_i``, m = C dq   motor_fc, motor_fv
+    drift                  ``(t - t0) / 3600 * d tau_E / d log p`` for each effect  rate_per_hour
+                           E of the model and its level parameter p
+    =====================  ======================================================  ============
 
     Args:
         motion: measured motion (``ddq`` smoothed).

@@ -1,34 +1,16 @@
 """Name: which candidate effects have real support in the residual.
 
-The residual ``r`` (N, 6) is whitened per joint by the noise floor (rows of joint ``j`` divided
-by ``floor_j``, so the insertion force and the wrist torques count by their own noise) and
-stacked to one vector; a candidate's columns are whitened the same way. Then, greedily:
-
-1. **Held-out information criterion.** Time series: five *contiguous* folds
-   (scikit-learn ``KFold`` without shuffling). In each fold both nested models (the effects
-   accepted so far, with and without the candidate) are fitted on the other folds with
-   statsmodels OLS, and scored on the held-out fold by ``BIC = -2 loglike + k log n`` with
-   statsmodels' log-likelihood of the held-out rows at the training parameters.
-   ``delta_bic`` is the sum over folds of ``BIC(with) - BIC(without)``: negative means the
-   candidate predicts data it never saw better than its extra parameters cost.
-2. **Stability.** A moving-block bootstrap (1 s blocks) refits the model with the candidate;
-   ``stability`` is the fraction of replicates whose fitted effect torque correlates above
-   0.9 with the full-data one. An effect fitted to noise changes shape from replicate to
-   replicate; a real one does not.
-   Every remaining candidate is re-scored at every step: one without support alone may
-   have it once another effect is named (a viscous term under a large unexplained offset);
-   shapes profiled on the residual (Stribeck velocities, seal travel and static ratio) are
-   re-profiled on what the named effects leave.
-3. **Size.** The effect's fitted torque must reach ``MIN_SIZE`` of the noise floor on at least
-   one joint: with tens of thousands of rows a criterion can favour an effect that is real but
-   too small to matter.
-
-A candidate is named when ``delta_bic < -MIN_DELTA_BIC`` with at least 4 of 5 folds in favour,
-``stability >= MIN_STABILITY`` and the size test pass. Columns of a candidate already spanned
-by accepted effects (R^2 > 0.99) are removed first, so collinear duplicates (a spring's
-constant after an offset, a seal's Coulomb term after Coulomb friction) cannot be named twice.
-Finally every named effect is re-tested against all the others (drop-one ``delta_bic``) and
-the list is ordered by that evidence.
+The discrepancy workflow must name the effect a model lacks without naming noise, or an
+effect real but too small to matter, or the same effect twice. Candidates
+(:mod:`~wrenchd.models.discrepancy.candidates`) are judged on the residual [N m; N on
+insertion] whitened per joint by its noise floor, so every joint counts by its own noise, by
+three tests: a held-out Bayesian information criterion on contiguous folds (Schwarz, "Estimating
+the dimension of a model", Ann. Statist. 6(2), 1978; the threshold is "strong" on the scale of
+Kass and Raftery, "Bayes factors", JASA 90(430), 1995), the stability of the fitted effect
+under a moving-block bootstrap (Kunsch, Ann. Statist. 17(3), 1989), and its size against the
+noise floor. Forward selection is greedy, and every named effect is re-tested against the
+others at the end. Fits are statsmodels OLS, folds scikit-learn ``KFold``. The steps and their
+thresholds are in :func:`select`.
 """
 
 from __future__ import annotations
@@ -167,6 +149,36 @@ def _stack(st: Stacked, named: list[Named], skip: int | None = None) -> np.ndarr
 
 def select(st: Stacked, candidates: list[Candidate]) -> tuple[list[Named], list[dict]]:
     """Greedy forward selection with held-out BIC, bootstrap stability and size.
+
+    The residual ``r`` (N, 6) is whitened per joint by the noise floor (rows of joint ``j``
+    divided by ``floor_j``, so the insertion force and the wrist torques count by their own
+    noise) and stacked to one vector; a candidate's columns are whitened the same way. Then, greedily:
+
+    1. **Held-out information criterion.** Time series: five *contiguous* folds
+       (scikit-learn ``KFold`` without shuffling). In each fold both nested models (the effects
+       accepted so far, with and without the candidate) are fitted on the other folds with
+       statsmodels OLS, and scored on the held-out fold by ``BIC = -2 loglike + k log n`` with
+       statsmodels' log-likelihood of the held-out rows at the training parameters.
+       ``delta_bic`` is the sum over folds of ``BIC(with) - BIC(without)``: negative means the
+       candidate predicts data it never saw better than its extra parameters cost.
+    2. **Stability.** A moving-block bootstrap (1 s blocks) refits the model with the candidate;
+       ``stability`` is the fraction of replicates whose fitted effect torque correlates above
+       0.9 with the full-data one. An effect fitted to noise changes shape from replicate to
+       replicate; a real one does not.
+       Every remaining candidate is re-scored at every step: one without support alone may
+       have it once another effect is named (a viscous term under a large unexplained offset);
+       shapes profiled on the residual (Stribeck velocities, seal travel and static ratio) are
+       re-profiled on what the named effects leave.
+    3. **Size.** The effect's fitted torque must reach ``MIN_SIZE`` of the noise floor on at least
+       one joint: with tens of thousands of rows a criterion can favour an effect that is real but
+       too small to matter.
+
+    A candidate is named when ``delta_bic < -MIN_DELTA_BIC`` with at least 4 of 5 folds in favour,
+    ``stability >= MIN_STABILITY`` and the size test pass. Columns of a candidate already spanned
+    by accepted effects (R^2 > 0.99) are removed first, so collinear duplicates (a spring's
+    constant after an offset, a seal's Coulomb term after Coulomb friction) cannot be named twice.
+    Finally every named effect is re-tested against all the others (drop-one ``delta_bic``) and
+    the list is ordered by that evidence.
 
     Returns:
         (named effects ordered by evidence, the score table of every candidate at each step).
