@@ -152,7 +152,8 @@ def select(st: Stacked, candidates: list[Candidate]) -> tuple[list[Named], list[
 
     The residual ``r`` (N, 6) is whitened per joint by the noise floor (rows of joint ``j``
     divided by ``floor_j``, so the insertion force and the wrist torques count by their own
-    noise) and stacked to one vector; a candidate's columns are whitened the same way. Then, greedily:
+    noise) and stacked to one vector; a candidate's columns are whitened the same way. Then,
+    greedily:
 
     1. **Held-out information criterion.** Time series: five *contiguous* folds
        (scikit-learn ``KFold`` without shuffling). In each fold both nested models (the effects
