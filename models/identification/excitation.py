@@ -3,7 +3,7 @@
 Each excited joint follows a finite Fourier series (Swevers, Ganseman, Tukel, De Schutter,
 Van Brussel, "Optimal robot excitation and identification", IEEE Trans. Robotics and
 Automation 13(5), 1997), periodic in ``T = 1 / f`` with base frequency ``f`` [Hz] and
-``N`` harmonics, ``w = 2 pi f``::
+``N`` harmonics, ``w = 2 pi f``, positions in rad (m on insertion)::
 
     q_j(t)   = q0_j + sum_k  a_jk / (w k) sin(w k t) - b_jk / (w k) cos(w k t)
     dq_j(t)  =        sum_k  a_jk cos(w k t) + b_jk sin(w k t)
@@ -14,18 +14,10 @@ analytic. The first harmonic is fixed by ``sum_k a_jk = 0`` and ``sum_k k b_jk =
 trajectory starts and ends at rest (``dq = ddq = 0`` at ``t = 0, T``): the arm is moved to
 ``q(0)`` and the set-points streamed from there.
 
-Limits are met by construction: each joint's free coefficients are scaled by the largest
-factor that keeps its position inside the box, its speed under ``max_velocity`` and its
-acceleration under ``max_acceleration`` on the output grid (times a margin), with the centre
-of its swing a bounded decision variable. The optimiser (``scipy.optimize.minimize``,
-L-BFGS-B, finite differences, a bounded number of iterations, seeded start) then minimises
-``log10`` of the condition number of the base-parameter regressor of
-:mod:`~wrenchd.models.identification.free_motion`'s model (base inertial and offset columns
-plus Coulomb ``tanh(dq / eps)`` and viscous ``dq``) stacked over one period: the criterion of
-Gautier and Khalil ("Exciting trajectories for the identification of base inertial parameters
-of robots", IJRR 11(4), 1992) that Swevers et al. compare with, and that the WPI dVRK package
-(Wang et al., RA-L 2019) minimises. Only the torques of the excited joints enter: a joint held
-still by its controller measures mostly its own stiction.
+The optimiser (:func:`optimise_excitation`) minimises the condition number of the
+base-parameter regressor over one period, the criterion of Gautier and Khalil ("Exciting
+trajectories for the identification of base inertial parameters of robots", IJRR 11(4), 1992)
+that the WPI dVRK package (Wang et al., RA-L 2019) minimises, within the joint limits.
 """
 
 from __future__ import annotations
@@ -284,6 +276,18 @@ class _Parametrisation:
 def optimise_excitation(config: ExcitationConfig | None = None,
                         robot: RigidBodyModel | None = None) -> Excitation:
     """An excitation trajectory within the limits with a minimal regressor condition number.
+
+    Limits are met by construction: each joint's free coefficients are scaled by the largest
+    factor that keeps its position inside the box, its speed under ``max_velocity`` and its
+    acceleration under ``max_acceleration`` on the output grid (times a margin), with the
+    centre of its swing a bounded decision variable. ``scipy.optimize.minimize`` (L-BFGS-B,
+    finite differences, a bounded number of iterations, seeded start) then minimises ``log10``
+    of the condition number of the base-parameter regressor of
+    :mod:`~wrenchd.models.identification.free_motion`'s model (base inertial and offset
+    columns plus Coulomb ``tanh(dq / eps)`` and viscous ``dq``) stacked over one period: the
+    criterion of Gautier and Khalil that Swevers et al. compare with. Only the torques of the
+    excited joints enter: a joint held still by its controller measures mostly its own
+    stiction.
 
     Args:
         config: joints, frequencies, limits, optimiser budget (defaults: joints 1-3, 0.1 Hz,
