@@ -1,7 +1,8 @@
 """Cannula seal friction: a LuGre bristle model plus a stick-slip rubber lip.
 
 The trocar's seal grips the instrument shaft, so it resists insertion (joint 3, force [N])
-and tool roll (joint 4, torque [N m]); it does nothing to yaw, pitch or the wrist.
+and tool roll (joint 4, torque [N m]); it does nothing to yaw, pitch or the wrist. The
+estimator's step 2 learns this force, and the simulator needs it to show what a seal does.
 
 Published magnitudes (van den Dobbelsteen, Schooleman and Dankelman, "Friction dynamics of
 trocars", Surg Endosc 21:1338, 2007: six trocars, a 5 mm grasper): sliding friction 0.25 to
@@ -10,45 +11,12 @@ starts or reverses, which they attribute to deformation of the rubber and silico
 Alazmani et al. (Proc IMechE H 229:271, 2015) see stick-slip in dry seals (gone with
 lubrication) and higher friction on retraction than on insertion.
 
-Model, per sealed joint, with ``x`` the joint position [m; rad] and ``v`` its velocity:
-
-* **LuGre bristles** (Canudas de Wit, Olsson, Astrom and Lischinsky, IEEE TAC 40:419, 1995):
-  ``dz/dt = v - sigma0 |v| z / g(v)``, ``g(v) = fc + fs_excess exp(-(v/vs)^2)``,
-  ``F_b = sigma0 z + sigma1 dz/dt + sigma2 v``. Presliding (the bristle deflects like a spring
-  before the seal slides) gives the hysteresis loop of force against position; ``g`` near
-  zero velocity is the static level ``fc + fs_excess``, so every reversal or start passes
-  through a breakaway spike before friction settles to ``fc``.
-* **Stick-slip lip**: at low speed the rubber lip sticks to the shaft and deflects with it,
-  ``F_l = lip_stiffness * y`` with ``dy/dt = v``, until ``|F_l|`` reaches the break level
-  ``lip_amplitude * (1 - |v| / lip_velocity)``; it then slips back to rest (``y = 0``) and
-  sticks again: a sawtooth of height up to ``lip_amplitude`` whose teeth shrink with speed and
-  vanish at ``lip_velocity`` (the classic critical velocity of stick-slip), above which the lip
-  slides continuously and carries no force of its own.
-
-The drive supplies ``F = F_b + F_l`` (sign of the velocity while sliding).
-
-Assumptions:
-* The motion is prescribed (stiff position servo), so the seal cannot feed back on it.
-  Stick-slip normally emerges from falling friction plus a compliance; with the motion
-  imposed it cannot emerge from LuGre alone, hence the lip state, added in parallel (a
-  phenomenological sawtooth, not a series compliance).
-* Insertion and roll have independent bristles and lips; a real seal shares one contact, so a
-  combined helical slide would break away earlier than this model says.
-* Symmetric in direction (no insertion/retraction asymmetry), independent of insertion depth,
-  of insufflation pressure and of lateral load from the body wall.
-* Each step ``t[k-1] -> t[k]`` is integrated exactly for a velocity held at
-  ``(x[k] - x[k-1]) / (t[k] - t[k-1])``: ``z`` relaxes exponentially towards
-  ``sign(v) g(v) / sigma0`` with exponent ``sigma0 |dx| / g`` (stable for any stiffness, no
-  fixed step assumed). The state starts at rest: ``z = 0``, ``y = 0``.
-
-Defaults (insertion): fc 1.0 N and fs_excess 0.6 N, mid-range of the published values;
-vs 5 mm/s; sigma0 5e4 N/m, so the bristle deflects ~30 um at breakaway and a slow reversal
-(< ~0.05 m/s^2) develops most of the spike, a sharp one less of it; sigma1 5 N s/m, below
-4 sigma2 fc / fs_excess = 13 N s/m, the bound under which the map v -> F stays passive as we
-recall it from Barabanov and Ortega (IEEE TAC 45:830, 2000; not re-derived); sigma2 2 N s/m; lip
-sawtooth 0.15 N at 3e3 N/m (teeth of 50 um at rest, ~7 Hz at 0.3 mm/s), gone above 2 mm/s.
-Roll defaults are the insertion values moved to a shaft of radius ``r = 4.2 mm``: forces
-times ``r``, stiffnesses and damping times ``r^2``, velocities divided by ``r``.
+Model, per sealed joint: LuGre bristles (Canudas de Wit, Olsson, Astrom and Lischinsky, IEEE
+TAC 40:419, 1995), whose presliding gives the hysteresis of force against position and a
+breakaway spike at every start or reversal, plus a rubber lip that sticks to the shaft at low
+speed and slips back (a sawtooth that vanishes above a critical velocity). The equations and
+assumptions are at :class:`SealFriction`, the defaults and their sources at
+:class:`SealParams` (:func:`seal_force` computes the force).
 """
 
 from __future__ import annotations
@@ -74,7 +42,17 @@ def _pair(description: str, insertion: float, roll: float):
 
 
 class SealParams(EffectParams):
-    """Seal parameters, each a pair ``(insertion [N, m units], roll [N m, rad units])``."""
+    """Seal parameters, each a pair ``(insertion [N, m units], roll [N m, rad units])``.
+
+    Defaults (insertion): fc 1.0 N and fs_excess 0.6 N, mid-range of the published values; vs 5
+    mm/s; sigma0 5e4 N/m, so the bristle deflects ~30 um at breakaway and a slow reversal (<
+    ~0.05 m/s^2) develops most of the spike, a sharp one less of it; sigma1 5 N s/m, below 4
+    sigma2 fc / fs_excess = 13 N s/m, the bound under which the map v -> F stays passive as we
+    recall it from Barabanov and Ortega (IEEE TAC 45:830, 2000; not re-derived); sigma2 2 N s/m;
+    lip sawtooth 0.15 N at 3e3 N/m (teeth of 50 um at rest, ~7 Hz at 0.3 mm/s), gone above 2
+    mm/s. Roll defaults are the insertion values moved to a shaft of radius ``r = 4.2 mm``:
+    forces times ``r``, stiffnesses and damping times ``r^2``, velocities divided by ``r``.
+    """
 
     fc: tuple[float, float] = _pair("Coulomb (sliding) level [N; N m]", 1.0, 0.004)
     fs_excess: tuple[float, float] = _pair(
@@ -215,7 +193,39 @@ def _bristle_chunk(dx, v_step, v, c, z0: float) -> tuple[np.ndarray, float]:
 
 @register
 class SealFriction(Effect):
-    """Cannula seal friction on insertion and roll (see the module docstring).
+    """Cannula seal friction on insertion and roll.
+
+    Per sealed joint, with ``x`` the joint position [m; rad] and ``v`` its velocity:
+
+    * **LuGre bristles** (Canudas de Wit, Olsson, Astrom and Lischinsky, IEEE TAC 40:419, 1995):
+      ``dz/dt = v - sigma0 |v| z / g(v)``, ``g(v) = fc + fs_excess exp(-(v/vs)^2)``,
+      ``F_b = sigma0 z + sigma1 dz/dt + sigma2 v``. Presliding (the bristle deflects like a spring
+      before the seal slides) gives the hysteresis loop of force against position; ``g`` near
+      zero velocity is the static level ``fc + fs_excess``, so every reversal or start passes
+      through a breakaway spike before friction settles to ``fc``.
+    * **Stick-slip lip**: at low speed the rubber lip sticks to the shaft and deflects with it,
+      ``F_l = lip_stiffness * y`` with ``dy/dt = v``, until ``|F_l|`` reaches the break level
+      ``lip_amplitude * (1 - |v| / lip_velocity)``; it then slips back to rest (``y = 0``) and
+      sticks again: a sawtooth of height up to ``lip_amplitude`` whose teeth shrink with speed and
+      vanish at ``lip_velocity`` (the classic critical velocity of stick-slip), above which the lip
+      slides continuously and carries no force of its own.
+
+    The drive supplies ``F = F_b + F_l`` (sign of the velocity while sliding).
+
+    Assumptions:
+
+    * The motion is prescribed (stiff position servo), so the seal cannot feed back on it.
+      Stick-slip normally emerges from falling friction plus a compliance; with the motion
+      imposed it cannot emerge from LuGre alone, hence the lip state, added in parallel (a
+      phenomenological sawtooth, not a series compliance).
+    * Insertion and roll have independent bristles and lips; a real seal shares one contact, so a
+      combined helical slide would break away earlier than this model says.
+    * Symmetric in direction (no insertion/retraction asymmetry), independent of insertion depth,
+      of insufflation pressure and of lateral load from the body wall.
+    * Each step ``t[k-1] -> t[k]`` is integrated exactly for a velocity held at
+      ``(x[k] - x[k-1]) / (t[k] - t[k-1])``: ``z`` relaxes exponentially towards
+      ``sign(v) g(v) / sigma0`` with exponent ``sigma0 |dx| / g`` (stable for any stiffness, no
+      fixed step assumed). The state starts at rest: ``z = 0``, ``y = 0``.
 
     Overrides (e.g. from ``drift``) of a parameter may have shape ``(2,)`` (constant),
     ``(N, 2)`` (a pair per step) or ``(N,)`` (one value per step for both joints; when
