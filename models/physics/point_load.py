@@ -1,35 +1,25 @@
 """The joint torques of a point mass fixed to a PSM link, the parallelogram's links included.
 
-A load of mass ``m`` at a point ``p`` fixed in a link's frame moves with the joints; the
-motors hold it with
+A load (a payload, an instrument's mass, a weight hung on the arm to check an estimate) of
+mass ``m`` [kg] at a point ``p`` fixed in a link's frame moves with the joints; the motors
+hold it with
 
-    tau_j = m (a_p - g) . dp/dq_j
+    tau_j = m (a_p - g) . dp/dq_j            [N m; N on insertion]
 
-where ``p(q)`` is the point in base axes, ``a_p`` its acceleration and ``g`` gravity in base
-axes (the base frame of :mod:`wrenchd.models.physics.kinematics`, origin at the RCM, and the
-gravity of :class:`~wrenchd.models.physics.dynamics.RigidBodyConfig`, ``-z``). Gravity alone
-(``a_p = 0``) is the static part; with the trajectory's acceleration (a centred,
+where ``p(q)`` is the point in base axes [m], ``a_p`` its acceleration and ``g`` gravity
+[m/s^2] (the base frame of :mod:`wrenchd.models.physics.kinematics`, origin at the RCM, and
+the gravity of :class:`~wrenchd.models.physics.dynamics.RigidBodyConfig`, ``-z``). Gravity
+alone (``a_p = 0``) is the static part; with the trajectory's acceleration (a centred,
 offline derivative of ``p(t)``) the point's inertia is included.
 
-Links:
-
-* the serial chain's links, by joint name (``outer_yaw`` ... ``outer_wrist_yaw``): the frames
-  of the modified-DH table, :mod:`~wrenchd.models.physics.kinematics`;
-* the pitch parallelogram, which the serial chain replaces by a virtual pitch joint at the
-  RCM. Its links follow the PSM model of WPI-AIM/dvrk_dynamics_identification (notebook
-  ``main_psm.ipynb``, model ``psm``, the modified-DH rows of its links ``L_21`` ... ``L_25``;
-  lengths ``l_2L1`` 96 mm, ``l_2L2`` 516 mm, ``l_2L3`` 40.09 mm, ``l_2H1`` 144.54 mm):
-
-  ``parallel_back`` (``L_21``): turns with the pitch, parallel to the instrument shaft;
-  ``parallel_upper`` (``L_22``): the long upper link; it keeps its orientation in the yaw
-  link's frame while the pitch moves (it translates). Its x axis runs along the link,
-  parallel to the yaw axis; its y axis points from the link towards the yaw axis, so a point
-  *above* the link's centre line has a negative y;
-  ``parallel_top`` (``L_25``) and ``parallel_bottom`` (``L_24``): the short links pivoted on
-  it, turning with the pitch.
-
-  A point's position along ``parallel_upper`` does not change its torques: the link stays
-  parallel to the yaw axis and every point of it moves alike under the pitch.
+Links (:data:`LINKS`): the serial chain's, by joint name (``outer_yaw`` ...
+``outer_wrist_yaw``, the modified-DH frames of :mod:`~wrenchd.models.physics.kinematics`),
+and the pitch parallelogram's (``parallel_back``, ``parallel_upper``, ``parallel_top``,
+``parallel_bottom``), which the serial chain replaces by a virtual pitch joint at the RCM.
+These follow the PSM model of WPI-AIM/dvrk_dynamics_identification (notebook
+``main_psm.ipynb``, model ``psm``, the modified-DH rows of its links ``L_21`` ... ``L_25``);
+their frames, and which point of a link moves how, are in docs/physics-and-discrepancy.md
+("A point load on a link").
 """
 
 from __future__ import annotations
@@ -39,7 +29,8 @@ import numpy as np
 from wrenchd.models.errors import DataError
 from wrenchd.models.series import JOINT_NAMES, N_JOINTS
 
-#: WPI model lengths [m] (see the module docstring for the source).
+#: WPI model lengths [m]: ``l_2L1``, ``l_2L2``, ``l_2L3``, ``l_2H1`` of the PSM model in
+#: WPI-AIM/dvrk_dynamics_identification (``main_psm.ipynb``, model ``psm``).
 L2L1, L2L2, L2L3, L2H1 = 0.096, 0.516, 0.04009, 0.14454
 PARALLEL_LINKS = ("parallel_back", "parallel_upper", "parallel_top", "parallel_bottom")
 LINKS = JOINT_NAMES + PARALLEL_LINKS
