@@ -1,6 +1,24 @@
 """``wrenchd train``: train one network of the two-step estimator from a config file.
 
-The config (TOML or JSON) is a :class:`TrainCommandConfig`::
+Training is a command of its own so that a network's checkpoint follows from one file: the
+config (TOML or JSON, a :class:`TrainCommandConfig`, example below and in
+docs/estimator-and-training.md) names the configuration (base, troc, corr or xfer), the
+recipe, the seed of every random choice, the data (simulated scenarios or recordings) and the
+output. Relative paths (data, output, base checkpoint) are taken from the working directory.
+Training runs on the CPU, or on a CUDA GPU when torch sees one (``--device`` overrides). The
+checkpoint carries the config, the format version, a description of the data, the validation
+score (the last ``val_fraction`` of every series, see
+:mod:`wrenchd.models.estimator.training`) and the provenance of the run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+#: a config file, shown by ``wrenchd train --help``
+EXAMPLE = """\
+example config:
 
     configuration = "base"            # base | troc | corr | xfer
     recipe = "free-space"             # a name of wrenchd.models.estimator.training.RECIPES (default
@@ -19,18 +37,7 @@ The config (TOML or JSON) is a :class:`TrainCommandConfig`::
 
     [[data]]                          # or a recording: MCAP or CSV (WPI or paper layout)
     path = "sessions/psm1.mcap"
-
-Relative paths (data, output, base checkpoint) are taken from the working directory.
-Training runs on the CPU, or on a CUDA GPU when torch sees one (``--device`` overrides).
-The checkpoint carries the config, the format version, a description of the data and the
-validation score (the last ``val_fraction`` of every series, see
-:mod:`wrenchd.models.estimator.training`) and the provenance of the run.
 """
-
-from __future__ import annotations
-
-import argparse
-import json
 
 
 def train_network(args: argparse.Namespace) -> int:
@@ -50,7 +57,7 @@ def train_network(args: argparse.Namespace) -> int:
 def register(subparsers) -> None:
     """Add ``wrenchd train`` to the CLI."""
     p = subparsers.add_parser("train", help="train a step-1 or step-2 network from a config",
-                              description=__doc__,
+                              description=__doc__, epilog=EXAMPLE,
                               formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--config", required=True, help="training config (.toml or .json)")
     p.add_argument("--output", help="checkpoint path (replaces the config's output)")
