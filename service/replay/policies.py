@@ -1,31 +1,13 @@
 """Adaptation policies for replay and comparison: a name, a description and a config change.
 
-A policy decides which samples reach the lifelong adaptation and when it may run. The
-mechanisms live in :class:`wrenchd.service.pipeline.arm.ArmPipeline` (the daemon's own code, so a replay
-proves something about the daemon); a :class:`Policy` here selects one of them by name and
-may tune any part of the :class:`~wrenchd.service.pipeline.arm.PipelineConfig` (gate bounds, delay line,
-round interval, ...).
-
-Built in:
-
-==================  ======================================================================
-``gated``           the daemon's default: free-motion samples only, after a delay line that
-                    drops the onset of a contact
-``frozen``          never adapt: the step-1 model and the initial (zero) correction
-``ungated``         every sample trains, contact included (shows how contact poisons the net)
-``drift-triggered`` gated, but adapt only for ``eager_s`` after a detected drift
-``periodic-reset``  gated, and back to the initial correction net every ``reset_every_s``
-==================  ======================================================================
-
-Writing your own (in your code, before calling replay or compare)::
-
-    from wrenchd.service.replay.policies import Policy, register_policy
-
-    register_policy(Policy(
-        name="gated-cautious",
-        description="gated with a 3 s delay line and rounds every 5 s",
-        mechanism="gated",
-        overrides={"policy": {"release_delay_s": 3.0}, "adaptation": {"interval_s": 5.0}}))
+A policy decides which samples reach the lifelong adaptation and when it may run; comparing
+policies on the same sessions shows what the daemon's choice (``gated``) buys. The mechanisms
+live in :class:`wrenchd.service.pipeline.arm.ArmPipeline` (the daemon's own code, so a replay
+proves something about the daemon); a :class:`Policy` here selects one of them by name and may
+tune any part of the :class:`~wrenchd.service.pipeline.arm.PipelineConfig` (gate bounds, delay
+line, round interval, ...). Built in: ``gated`` (the daemon's default), ``frozen``,
+``ungated``, ``drift-triggered`` and ``periodic-reset``; what each does, and how to register
+your own (:func:`register_policy`), is in docs/replay-and-policies.md ("Policies").
 
 ``overrides`` is merged into the pipeline config (nested dicts, validated by pydantic, so a
 bad value is refused with its name). A policy needing a behaviour the pipeline does not have
