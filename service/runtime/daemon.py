@@ -1,37 +1,26 @@
 """The wrenchd daemon: zenoh in, two-step estimate + gate + lifelong adaptation, zenoh and MCAP out.
 
-One zenoh session per daemon; per arm:
+The daemon serves the estimated tip wrench [N, N m] of every arm it is given, at the rate of
+the arm's joint states (up to 1 kHz), while the correction net keeps adapting, without letting
+decoding, inference, logging or training delay one another. One zenoh session per daemon;
+per arm:
 
-* its joint states on ``measured_js``: by default one subscriber for all arms queues them
-  inside zenoh, without a Python callback per sample
-  (:class:`~wrenchd.service.runtime.intake.ChannelIntake`, ``[ring] intake``); else a
-  subscriber per arm whose callback only stamps the payload with its arrival time and puts it
-  in a bounded ring (no decoding, inference or training in a zenoh callback); either drops the
+* its joint states on ``measured_js``, queued inside zenoh by one subscriber for all arms
+  (:class:`~wrenchd.service.runtime.intake.ChannelIntake`) or, with ``[ring] intake =
+  "callback"``, stamped and put in a bounded ring by a callback per arm; either drops the
   oldest sample when full (``dropped``);
-* the daemon's estimation thread (one for all arms, interleaving them) takes the queued
-  samples through the arm's :class:`ArmPipeline` (decode -> validate -> estimate -> gate), publishes
-  the wrench and events, and hands inputs, estimates, events and a status snapshot to the log
-  writer process (:mod:`wrenchd.service.runtime.log_process`), which formats and writes them to the arm's
-  :class:`McapLog` (flushed every second, rotated) outside the daemon's GIL;
-* a queryable ``status`` (JSON: model version, rates, latency percentiles, counters, gate and
-  drift state) and a liveliness token ``alive``;
-* with the ``rmw_zenoh`` keys preset, the daemon is also a ROS 2 node for rmw_zenoh peers:
-  one node liveliness token for the session (``[ros]`` domain, name, namespace), one
-  subscription and one publisher token per such arm, and an attachment on every wrench
-  (:mod:`wrenchd.adapters.rmw_zenoh`).
+* the estimation thread (one for all arms) takes the queued samples through the arm's
+  :class:`ArmPipeline` (decode -> validate -> estimate -> gate), publishes the wrench and
+  events, and hands the records to the log writer process
+  (:mod:`wrenchd.service.runtime.log_process`), which writes the arm's :class:`McapLog`;
+* a queryable ``status`` (JSON), a liveliness token ``alive`` and, with the ``rmw_zenoh`` keys
+  preset, the tokens and attachments of a ROS 2 node (:mod:`wrenchd.adapters.rmw_zenoh`).
 
 One adaptation worker process serves all arms (:mod:`wrenchd.service.runtime.worker`). With
-``robot = "simulated"`` (the embedded default) the daemon also starts the simulated PSM as a
-separate process publishing on each arm's ``measured_js`` (``wrenchd robot``), recording its
-ground truth beside the logs.
-
-SIGINT/SIGTERM stop cleanly, however many arrive (:mod:`~wrenchd.service.runtime.stopping`:
-the handler only sets a flag; a stop that has not finished within ``STOP_BOUND_S`` says what it
-waited for and exits 3): subscribers are undeclared first (no callback runs after), the
-estimation thread finishes what is queued, the worker is asked to stop, the logs are
-finished, the worker and the robots are waited for, the session is closed. Every child ends
-by itself; one that has not within its bound is killed, and a line on stderr says so
-(``... killed it``).
+``robot = "simulated"`` the daemon also starts the simulated PSM (``wrenchd robot``). SIGINT
+and SIGTERM stop it cleanly and within a bound (:meth:`Daemon.close`,
+:mod:`~wrenchd.service.runtime.stopping`). Threads, processes and their reasons:
+docs/architecture.md.
 """
 
 from __future__ import annotations
@@ -91,7 +80,7 @@ def _robot_command(settings: ServiceSettings, arm: str) -> list[str]:
 
 
 class Daemon:
-    """All arms of one daemon (see the module docstring)."""
+    """All arms of one daemon: their intake, the estimation thread, the worker and the logs."""
 
     def __init__(self, settings: ServiceSettings) -> None:
         self.settings = settings
@@ -372,6 +361,13 @@ class Daemon:
         return 0
 
     def close(self) -> None:
+        """Stop: subscribers are undeclared first (no callback runs after), the estimation
+        thread finishes what is queued, the worker is asked to stop, the logs are finished, the
+        worker and the robots are waited for, the session is closed. Every child ends by
+        itself; one that has not within its bound is killed, and a line on stderr says so
+        (``... killed it``). Under :meth:`run`, a stop that has not finished within
+        ``STOP_BOUND_S`` says what it waited for and exits 3
+        (:mod:`~wrenchd.service.runtime.stopping`)."""
         self.stop.set()
         for robot in self.robots:
             if robot.poll() is None:

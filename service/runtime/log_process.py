@@ -1,31 +1,23 @@
 """The daemon's MCAP logs, written by a process of their own.
 
-Formatting and writing a sample's two records (input and estimate) costs over a hundred
-microseconds of CPU per sample; in the daemon's process all of it would run under its GIL,
-which the estimating thread waits for.
-:class:`LogWriterProcess` keeps only an append per record there: a sender thread hands the
-queued records over every ``interval_s`` as one pickled batch of plain values (bytes, or the
-name of a formatter in :data:`wrenchd.adapters.mcap_log.FORMATTERS` with its arguments as lists:
-~1 us per sample to pickle, against ~17 us for NumPy arrays), and the writer process makes
-them into ROS 2 messages (CDR; a joint state, event or status handed over as JSON is converted
-there) and writes the arm's :class:`~wrenchd.adapters.mcap_log.McapLog` (flushed every
-``flush_interval_s``, rotated, never fatal).
-
-Crash safety: if the daemon dies (even ``kill -9``), the writer reads the end of
-its pipe, writes what it received, finishes every file (summary and footer) and exits. Like the
-adaptation worker, it ignores SIGINT and SIGTERM (Ctrl-C reaches the whole process group; it
-stops on the daemon's word), leaves the daemon's real-time class and runs on the worker's CPUs.
-
-The writer also keeps each log directory under its disk budget
+Formatting and writing a sample's two records (input and estimate) costs far more CPU than
+appending them to a list; in the daemon's process all of it would run under its GIL, which
+the estimating thread waits for. :class:`LogWriterProcess` keeps only an append per record
+there: a sender thread hands the queued records over every ``interval_s`` [s] as one pickled
+batch of plain values (bytes, or the name of a formatter in
+:data:`wrenchd.adapters.mcap_log.FORMATTERS` with its arguments as lists, which pickle much
+faster than NumPy arrays), and the writer process makes them into ROS 2 messages (CDR; a
+joint state, event or status handed over as JSON is converted there) and writes the arm's
+:class:`~wrenchd.adapters.mcap_log.McapLog` (flushed every ``flush_interval_s``, rotated,
+never fatal). It also keeps each log directory under its disk budget
 (:class:`~wrenchd.adapters.log_budget.LogBudgets`: after a rotation and every
 ``budget_check_s``).
 
-The daemon's :class:`McapLog` objects stay its view of the logs: the writer reports each log's
-path, paths, written and lost counts, problem, the budget's notices (files removed, removals
-that failed) and the directory's bytes used and free back every ``interval_s``, and the sender
-thread copies them there (records the daemon could not hand over, queue full or writer gone,
-are added to ``lost``). A writer that died is reported as a log problem and started again after
-``retry_s`` (its new file starts a new part of the session).
+Crash safety: if the daemon dies (even ``kill -9``), the writer reads the end of its pipe,
+writes what it received, finishes every file (summary and footer) and exits. Like the
+adaptation worker, it ignores SIGINT and SIGTERM (Ctrl-C reaches the whole process group; it
+stops on the daemon's word), leaves the daemon's real-time class and runs on the worker's CPUs.
+The daemon's :class:`McapLog` objects stay its view of the logs (:class:`LogWriterProcess`).
 """
 
 from __future__ import annotations
@@ -110,7 +102,14 @@ def _writer_main(specs: list[tuple[str, dict[str, Any], dict[str, Any]]], inbox,
 
 
 class LogWriterProcess:
-    """Moves MCAP formatting and writing out of the daemon's process (module docstring).
+    """Moves MCAP formatting and writing out of the daemon's process.
+
+    The writer reports each log's path, paths, written and lost counts, problem, the budget's
+    notices (files removed, removals that failed) and the directory's bytes used and free back
+    every ``interval_s``, and the sender thread copies them onto the daemon's :class:`McapLog`
+    objects (records the daemon could not hand over, queue full or writer gone, are added to
+    ``lost``). A writer that died is reported as a log problem and started again after
+    ``retry_s`` (its new file starts a new part of the session).
 
     Args:
         logs: the daemon's logs (their arm, config and metadata start the writer's own;

@@ -11,11 +11,7 @@ number of signals at any spacing only store ``True`` again.
 Long loops ask :func:`check` between units of work (a batch of samples, a session); it raises
 :class:`Stopped`, which the command line turns into exit status 128 + the signal's number.
 
-A stop that does not finish is bounded (:meth:`StopSignals.bound`): a watchdog thread, armed
-once the stop begins, waits ``bound_s``; if the stop is still going then, it prints which
-stage it was waiting for (:func:`stage`) and ends the process with :data:`EXIT_STOP_HUNG`.
-The daemon's log files are finished by their writer process, which finishes them by itself
-when the daemon is gone.
+A stop that does not finish is bounded (:meth:`StopSignals.bound`, :data:`EXIT_STOP_HUNG`).
 
 Usage::
 
@@ -123,9 +119,11 @@ class StopSignals:
         return self.signum or int(signal.SIGINT)
 
     def bound(self, bound_s: float = STOP_BOUND_S) -> None:
-        """Arm the watchdog (once): if this context has not been left ``bound_s`` seconds
-        from now, say which :attr:`stage` the stop waits for and exit with
-        :data:`EXIT_STOP_HUNG`."""
+        """Arm the watchdog (once, when the stop begins): a thread that, if this context has
+        not been left ``bound_s`` seconds from now, prints which stage the stop waits for
+        (:func:`stage`) and ends the process with :data:`EXIT_STOP_HUNG`. The daemon's log
+        files are safe: their writer process finishes them by itself when the daemon is
+        gone."""
         if self._watchdog is not None:
             return
         self._watchdog = threading.Thread(target=self._watch, args=(bound_s,),

@@ -3,29 +3,16 @@
 Training never runs in a zenoh callback nor in the thread that estimates: it runs here, in a
 separate process (``spawn``), at a lower priority (``nice``), on one torch thread, and with a
 duty cycle of at most ``max_cpu_fraction`` of its wall time, so the estimation threads keep
-their latency. The pipelines send batches of gated samples and drift notices; the worker
-sends back round results (accepted ones with their weights) and errors. An exception in a
-round is reported and the last good model keeps serving; if the process dies, the daemon
-reports it and goes on estimating with the last model.
+their latency. The pipelines send batches of gated samples and drift notices
+(:class:`ProcessAdaptation`); the worker sends back round results (accepted ones with their
+weights) and errors. An exception in a round is reported and the last good model keeps
+serving; if the process dies, the daemon reports it and goes on estimating with the last
+model. The worker exits by itself when the daemon dies (``kill -9`` included): it watches its
+parent process. How it stops on the daemon's word: :class:`WorkerProcess`.
 
 Accepted versions are checkpointed as ``{models_dir}/{arm}/corr-v{N:04d}.pt`` (the
-estimator's safe checkpoint format) so any version can be loaded again (``corr_checkpoint``
-in the arm's settings). With ``keep_checkpoints`` set, each save then removes the arm's older
-ones but the newest ``keep_checkpoints``, the one the pipeline serves (it says which once it
-has swapped, :class:`ProcessAdaptation`), those it has not swapped to yet, and the arm's
-configured ``corr_checkpoint``. The worker exits by itself when the daemon dies (``kill -9``
-included): it watches its parent process.
-
-Stopping: the daemon sends ``stop`` (:meth:`WorkerProcess.stop`), which the loop sees at its
-next look at the inbox (it waits there, the duty cycle's pauses included, so a message wakes
-it at once; a round takes milliseconds); the stop goes before any message queued with it. A
-result the worker queued must not hold it up for long, nor be cut in half: the worker gives
-its queue's feeder thread at most ``FLUSH_TIMEOUT_S`` to write whole messages (the daemon
-reads them while it waits, :meth:`WorkerProcess.close`; a round's result, its weights, can
-fill the pipe), flushes its output and ends with ``os._exit(0)``: its state is in memory or
-already in its checkpoints, and the interpreter's teardown (with torch loaded, about half a
-second) has nothing left to save. The daemon kills a worker that has not ended within its
-bound, saying so.
+estimator's safe checkpoint format), so any version can be loaded again (``corr_checkpoint``
+in the arm's settings); :class:`Checkpoints` says which may be removed.
 
 Clocks: the worker schedules rounds on its own clock (seconds since it started), which is what
 a round result's ``t`` holds; the pipeline stamps the ``round`` and ``model`` events with the
@@ -86,7 +73,12 @@ def _main(inbox: mp.Queue, outbox: mp.Queue, configs: dict[str, dict[str, Any]],
 
 
 class Checkpoints:
-    """Which of an arm's saved Corr versions the worker may remove (module docstring).
+    """Which of an arm's saved Corr versions the worker may remove.
+
+    With ``keep_checkpoints`` set, each save removes the arm's older versions but the newest
+    ``keep``, the one the pipeline serves (it says which once it has swapped,
+    :class:`ProcessAdaptation`), those it has not swapped to yet, and the arm's configured
+    ``corr_checkpoint``.
 
     Args:
         keep: the newest versions kept per arm (None: every one).
@@ -212,7 +204,18 @@ def _run(inbox: mp.Queue, outbox: mp.Queue, configs: dict[str, dict[str, Any]],
 
 
 class WorkerProcess:
-    """The process and its queues; one per daemon."""
+    """The process and its queues; one per daemon.
+
+    The daemon sends ``stop`` (:meth:`stop`), which the loop sees at its next look at the inbox
+    (it waits there, the duty cycle's pauses included, so a message wakes it at once; a round
+    takes milliseconds); the stop goes before any message queued with it. A result the worker
+    queued must not hold it up for long, nor be cut in half: the worker gives its queue's
+    feeder thread at most ``FLUSH_TIMEOUT_S`` to write whole messages (the daemon reads them
+    while it waits, :meth:`close`; a round's result, its weights, can fill the pipe), flushes
+    its output and ends with ``os._exit(0)``: its state is in memory or already in its
+    checkpoints, and the interpreter's teardown has nothing left to save. The daemon kills a
+    worker that has not ended within its bound, saying so.
+    """
 
     def __init__(self, configs: dict[str, AdaptationConfig], models_dir: str | None,
                  max_cpu_fraction: float = 0.5,
