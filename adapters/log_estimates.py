@@ -23,7 +23,8 @@ from typing import Any
 import numpy as np
 
 from wrenchd.adapters.mcap_log import TOPIC_ESTIMATE, message_fields
-from wrenchd.adapters.mcap_session import NS_PER_S, TOPIC_JOINT_STATES
+from wrenchd.adapters.mcap_session import TOPIC_JOINT_STATES
+from wrenchd.adapters.ros2_msgs import NS_PER_S
 from wrenchd.models.errors import AdapterError, DataError
 
 

@@ -55,6 +55,7 @@ from typing import Any, Callable, IO
 
 import numpy as np
 import orjson
+from mcap.well_known import MessageEncoding, Profile
 from mcap.writer import CompressionType, Writer
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
@@ -162,7 +163,7 @@ def message_fields(message_encoding: str, schema_name: str, data: bytes,
             return orjson.loads(data)
         except orjson.JSONDecodeError as exc:
             raise DataError(f"not JSON: {exc}") from None
-    if message_encoding != ros2.MESSAGE_ENCODING:
+    if message_encoding != MessageEncoding.CDR:
         raise DataError(f"unknown message encoding {message_encoding!r}")
     message = ros2.deserialize(data, schema_name, definition)
     if schema_name in (ros2.EVENT, ros2.STATUS):
@@ -255,7 +256,7 @@ class McapLog:
             self._file = self.opener(path, "wb")
             self._writer = Writer(self._file, chunk_size=self.config.chunk_size,
                                   compression=CompressionType.ZSTD)
-            self._writer.start(profile=ros2.PROFILE, library=_LIBRARY)
+            self._writer.start(profile=Profile.ROS2, library=_LIBRARY)
             self._writer.add_metadata(SESSION_METADATA_NAME, {
                 "format": SESSION_FORMAT,
                 "json": json.dumps({"source": "wrenchd daemon", "arm": self.arm,

@@ -34,7 +34,6 @@ TOPIC_SENSOR_WRENCH = "/psm/truth/sensor_wrench"
 TOPIC_TORQUES = "/psm/truth/torques"
 SESSION_METADATA_NAME = "wrenchd.session"
 SESSION_FORMAT = "wrenchd.session/1"
-NS_PER_S = 1_000_000_000
 WRENCH_FRAME = "psm_base"
 
 #: the ROS 2 message type of each topic

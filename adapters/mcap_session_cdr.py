@@ -15,7 +15,6 @@ import numpy as np
 
 from wrenchd.adapters import ros2_msgs as ros2
 from wrenchd.adapters.mcap_session import (
-    NS_PER_S,
     TOPIC_JOINT_STATES,
     TOPIC_SENSOR_WRENCH,
     TOPIC_TORQUES,
@@ -66,24 +65,17 @@ def torque_messages(heads: list, in_contact: np.ndarray, motion: Sequence[np.nda
 
 
 # -- reading -----------------------------------------------------------------------------
-def _stamp_ns(header) -> int:
-    stamp = header.stamp
-    if stamp.sec < 0 or not 0 <= stamp.nanosec < NS_PER_S:
-        raise ValueError(f"bad header.stamp sec={stamp.sec} nanosec={stamp.nanosec}")
-    return stamp.sec * NS_PER_S + stamp.nanosec
-
-
 def _js_fields(m) -> tuple:
-    return _stamp_ns(m.header), list(m.name), m.position, m.velocity, m.effort
+    return ros2.time_ns(m.header.stamp), list(m.name), m.position, m.velocity, m.effort
 
 
 def _wrench_fields(m) -> tuple:
     f, t = m.wrench.force, m.wrench.torque
-    return _stamp_ns(m.header), np.array([f.x, f.y, f.z, t.x, t.y, t.z])
+    return ros2.time_ns(m.header.stamp), np.array([f.x, f.y, f.z, t.x, t.y, t.z])
 
 
 def _torque_fields(m) -> tuple:
-    return (_stamp_ns(m.header), bool(m.in_contact), m.position, m.velocity, m.acceleration,
+    return (ros2.time_ns(m.header.stamp), bool(m.in_contact), m.position, m.velocity, m.acceleration,
             m.internal, m.external, {e.name: e.torque for e in m.effects})
 
 

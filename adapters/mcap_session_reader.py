@@ -22,10 +22,10 @@ from mcap.exceptions import EndOfFile, InvalidMagic, McapError
 from mcap.opcode import Opcode
 from mcap.records import Channel, Chunk, Header, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader, breakup_chunk
+from mcap.well_known import MessageEncoding
 
 from wrenchd.adapters import mcap_session_cdr as cdr
 from wrenchd.adapters.mcap_session import (
-    NS_PER_S,
     SESSION_FORMAT,
     SESSION_METADATA_NAME,
     TOPIC_JOINT_STATES,
@@ -34,6 +34,7 @@ from wrenchd.adapters.mcap_session import (
     TOPIC_TYPES,
     TOPIC_WRENCH,
 )
+from wrenchd.adapters.ros2_msgs import NS_PER_S
 from wrenchd.models.errors import AdapterError, DataError
 from wrenchd.models.series import JOINT_NAMES, N_JOINTS, GroundTruth, JointStates, Session
 
@@ -163,7 +164,7 @@ class _Collector:
     def add(self, topic: str, encoding: str, log_times: list[int], datas: list[bytes]) -> None:
         extract, names = _FIELDS[topic]
         rows = []
-        if encoding == "cdr":
+        if encoding == MessageEncoding.CDR:
             extract_cdr = cdr.FIELDS[topic]
             for data, log_time in zip(datas, log_times, strict=True):
                 try:
@@ -307,7 +308,7 @@ def _check_channel(path: str, channel: Channel, schema_name: str | None) -> None
     """A session topic's channel must be JSON, or CDR of the topic's ROS 2 type."""
     if channel.message_encoding == "json":
         return
-    if channel.message_encoding != "cdr":
+    if channel.message_encoding != MessageEncoding.CDR:
         raise DataError(f"{path}: {channel.topic} has message encoding "
                         f"{channel.message_encoding!r}, expected 'cdr' (or 'json')")
     if schema_name != TOPIC_TYPES[channel.topic]:

@@ -11,6 +11,7 @@ from collections.abc import Mapping
 from typing import IO, Any
 
 import numpy as np
+from mcap.well_known import Profile
 from mcap.writer import CompressionType, Writer
 
 from wrenchd.adapters import mcap_session_cdr as cdr
@@ -100,7 +101,7 @@ class SessionWriter:
             self._file = open(self.path, "wb")
             self._writer = Writer(self._file, chunk_size=self.chunk_size,
                                   compression=CompressionType.ZSTD)
-            self._writer.start(profile=ros2.PROFILE, library=_LIBRARY)
+            self._writer.start(profile=Profile.ROS2, library=_LIBRARY)
             self._ros2 = ros2.Ros2Channels(self._writer)
         except OSError as exc:
             if self._file is not None:

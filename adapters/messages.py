@@ -8,7 +8,8 @@ Both encodings carry ``sensor_msgs/JointState`` and ``geometry_msgs/WrenchStampe
   version, ...) under ``"wrenchd"``.
 * ``cdr``: the ROS 2 serialisation (little-endian CDR with its 4-byte encapsulation header),
   exactly what a ROS 2 node bridged to zenoh (``zenoh-bridge-ros2dds``, ``rmw_zenoh``)
-  publishes, through the maintained ``rosbags`` type store (ROS 2 Humble definitions). CDR has
+  publishes, through the ``rosbags`` type store of :mod:`wrenchd.adapters.ros2_msgs` (ROS 2
+  Humble definitions). CDR has
   no room for extra fields: the gate flag and model version of a CDR arm go to the events and
   status keys and to the MCAP log.
 
@@ -25,25 +26,22 @@ from typing import Any, Literal
 import numpy as np
 import orjson
 
+from wrenchd.adapters import ros2_msgs as ros2
+from wrenchd.adapters.ros2_msgs import NS_PER_S, split_ns
 from wrenchd.models.errors import ConfigError, DataError
 from wrenchd.models.series import JointSample
 
 Encoding = Literal["json", "cdr"]
 ENCODINGS: tuple[str, ...] = ("json", "cdr")
-_NS = 1_000_000_000
 _SEC_LIMIT = 2 ** 31
-JOINT_STATE_TYPE = "sensor_msgs/msg/JointState"
-WRENCH_TYPE = "geometry_msgs/msg/WrenchStamped"
+JOINT_STATE_TYPE = ros2.JOINT_STATE
+WRENCH_TYPE = ros2.WRENCH_STAMPED
 _NUMPY = orjson.OPT_SERIALIZE_NUMPY
-
-
-def _split_ns(stamp_ns: int) -> tuple[int, int]:
-    return stamp_ns // _NS, stamp_ns % _NS
 
 
 def stamp_ns_of(t_s: float) -> int:
     """Seconds to integer nanoseconds (rounded)."""
-    return int(round(t_s * _NS))
+    return int(round(t_s * NS_PER_S))
 
 
 # -- JSON ---------------------------------------------------------------------------------
@@ -83,12 +81,12 @@ def _header(message: dict[str, Any]) -> tuple[int, str]:
         raise DataError("header.stamp.sec and .nanosec must be integers")
     if not 0 <= sec < _SEC_LIMIT:                     # ROS builtin_interfaces/Time: int32 sec
         raise DataError(f"header.stamp.sec out of range [0, 2^31): {str(sec)[:24]}")
-    if not 0 <= nanosec < _NS:
+    if not 0 <= nanosec < NS_PER_S:
         raise DataError(f"header.stamp.nanosec out of range: {nanosec}")
     frame = header.get("frame_id", "")
     if not isinstance(frame, str):
         raise DataError("header.frame_id must be a string")
-    return sec * _NS + nanosec, frame
+    return sec * NS_PER_S + nanosec, frame
 
 
 def _json_object(payload: bytes, what: str) -> dict[str, Any]:
@@ -126,7 +124,7 @@ def _finite_vector(values, what: str) -> np.ndarray:
 
 
 def _json_joint_state(stamp_ns: int, frame_id: str, names, position, velocity, effort) -> bytes:
-    sec, nanosec = _split_ns(stamp_ns)
+    sec, nanosec = split_ns(stamp_ns)
     return orjson.dumps({"header": {"stamp": {"sec": sec, "nanosec": nanosec},
                                     "frame_id": frame_id},
                          "name": list(names),
@@ -137,7 +135,7 @@ def _json_joint_state(stamp_ns: int, frame_id: str, names, position, velocity, e
 
 def _json_wrench(stamp_ns: int, frame_id: str, wrench: np.ndarray,
                  extra: dict[str, Any] | None) -> bytes:
-    sec, nanosec = _split_ns(stamp_ns)
+    sec, nanosec = split_ns(stamp_ns)
     f = _finite_vector(wrench, "a wrench").tolist()
     message = {"header": {"stamp": {"sec": sec, "nanosec": nanosec}, "frame_id": frame_id},
                "wrench": {"force": {"x": f[0], "y": f[1], "z": f[2]},
@@ -168,73 +166,34 @@ def _decode_json_wrench(payload: bytes) -> tuple[int, str, np.ndarray, dict[str,
 
 
 # -- CDR ----------------------------------------------------------------------------------
-class _Cdr:
-    """The rosbags type store with the three message types wrenchd needs (built once)."""
-
-    _instance: _Cdr | None = None
-
-    def __init__(self) -> None:
-        from rosbags.typesys import Stores, get_typestore
-
-        self.store = get_typestore(Stores.ROS2_HUMBLE)
-        types = self.store.types
-        self.JointState = types[JOINT_STATE_TYPE]
-        self.WrenchStamped = types[WRENCH_TYPE]
-        self.Wrench = types["geometry_msgs/msg/Wrench"]
-        self.Vector3 = types["geometry_msgs/msg/Vector3"]
-        self.Header = types["std_msgs/msg/Header"]
-        self.Time = types["builtin_interfaces/msg/Time"]
-
-    @classmethod
-    def get(cls) -> _Cdr:
-        if cls._instance is None:
-            cls._instance = cls()
-        return cls._instance
-
-    def header(self, stamp_ns: int, frame_id: str):
-        sec, nanosec = _split_ns(stamp_ns)
-        return self.Header(stamp=self.Time(sec=sec, nanosec=nanosec), frame_id=frame_id)
-
-    def deserialize(self, payload: bytes, typename: str):
-        try:
-            return self.store.deserialize_cdr(bytes(payload), typename)
-        except Exception as exc:      # rosbags raises struct/index/assertion/unicode errors
-            raise DataError(f"not a CDR {typename}: {type(exc).__name__}: {exc}") from None
-
-
 def _cdr_joint_state(stamp_ns: int, frame_id: str, names, position, velocity, effort) -> bytes:
-    c = _Cdr.get()
-    msg = c.JointState(header=c.header(stamp_ns, frame_id), name=list(names),
-                       position=np.asarray(position, dtype=np.float64),
-                       velocity=np.asarray(velocity, dtype=np.float64),
-                       effort=np.asarray(effort, dtype=np.float64))
-    return bytes(c.store.serialize_cdr(msg, JOINT_STATE_TYPE))
+    return ros2.serialize(ros2.message_class(JOINT_STATE_TYPE)(
+        header=ros2.header(stamp_ns, frame_id), name=list(names),
+        position=np.asarray(position, dtype=np.float64),
+        velocity=np.asarray(velocity, dtype=np.float64),
+        effort=np.asarray(effort, dtype=np.float64)))
 
 
 def _decode_cdr_joint_state(payload: bytes) -> JointSample:
-    msg = _Cdr.get().deserialize(payload, JOINT_STATE_TYPE)
-    stamp = msg.header.stamp
-    if not 0 <= stamp.nanosec < _NS:
-        raise DataError(f"header.stamp.nanosec out of range: {stamp.nanosec}")
-    return JointSample(stamp.sec * _NS + stamp.nanosec, msg.header.frame_id, tuple(msg.name),
-                         np.array(msg.position, dtype=np.float64),
-                         np.array(msg.velocity, dtype=np.float64),
-                         np.array(msg.effort, dtype=np.float64))
+    msg = ros2.deserialize(payload, JOINT_STATE_TYPE)
+    return JointSample(ros2.time_ns(msg.header.stamp), msg.header.frame_id, tuple(msg.name),
+                       np.array(msg.position, dtype=np.float64),
+                       np.array(msg.velocity, dtype=np.float64),
+                       np.array(msg.effort, dtype=np.float64))
 
 
 def _cdr_wrench(stamp_ns: int, frame_id: str, wrench: np.ndarray) -> bytes:
-    c = _Cdr.get()
+    vector = ros2.message_class(ros2.VECTOR3)
     f = [float(v) for v in wrench]
-    msg = c.WrenchStamped(header=c.header(stamp_ns, frame_id), wrench=c.Wrench(
-        force=c.Vector3(x=f[0], y=f[1], z=f[2]), torque=c.Vector3(x=f[3], y=f[4], z=f[5])))
-    return bytes(c.store.serialize_cdr(msg, WRENCH_TYPE))
+    return ros2.serialize(ros2.message_class(WRENCH_TYPE)(
+        header=ros2.header(stamp_ns, frame_id), wrench=ros2.message_class(ros2.WRENCH)(
+            force=vector(x=f[0], y=f[1], z=f[2]), torque=vector(x=f[3], y=f[4], z=f[5]))))
 
 
 def _decode_cdr_wrench(payload: bytes) -> tuple[int, str, np.ndarray, dict[str, Any]]:
-    msg = _Cdr.get().deserialize(payload, WRENCH_TYPE)
+    msg = ros2.deserialize(payload, WRENCH_TYPE)
     w = msg.wrench
-    stamp = msg.header.stamp
-    return (stamp.sec * _NS + stamp.nanosec, msg.header.frame_id,
+    return (ros2.time_ns(msg.header.stamp), msg.header.frame_id,
             np.array([w.force.x, w.force.y, w.force.z, w.torque.x, w.torque.y, w.torque.z]), {})
 
 
@@ -249,7 +208,7 @@ def prepare_encoding(encoding: str) -> None:
     """Build what ``encoding`` needs now (the CDR type store takes ~0.3 s to build), so the
     first message decoded on a hot path does not pay for it."""
     if check_encoding(encoding) == "cdr":
-        _Cdr.get()
+        ros2.typestore()
 
 
 def encode_joint_state(encoding: str, stamp_ns: int, names, position, velocity, effort,
@@ -295,9 +254,16 @@ def decode_wrench(encoding: str, payload: bytes) -> tuple[int, str, np.ndarray, 
     return _decode_cdr_wrench(payload)
 
 
-def finite_or_none(x: float) -> float | None:
-    """A float for JSON, ``None`` where it is not finite."""
-    return float(x) if math.isfinite(x) else None
+def nan_to_none(x: Any) -> Any:
+    """``x`` made fit for JSON, which has no NaN: every non-finite float in it (nested in
+    dicts, lists and tuples; tuples become lists) becomes ``None``."""
+    if isinstance(x, float):
+        return x if math.isfinite(x) else None
+    if isinstance(x, dict):
+        return {k: nan_to_none(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [nan_to_none(v) for v in x]
+    return x
 
 
 # -- set-up changes (wrenchd's own message, JSON only) ------------------------------------
@@ -317,7 +283,7 @@ def encode_setup_change(stamp_ns: int | None = None, pressure_mmhg: float | None
     if instrument is not None:
         body["instrument"] = str(instrument)
     if stamp_ns is not None:
-        sec, nanosec = _split_ns(int(stamp_ns))
+        sec, nanosec = split_ns(stamp_ns)
         body["stamp"] = {"sec": sec, "nanosec": nanosec}
     if pressure_mmhg is not None:
         body["pressure_mmhg"] = float(pressure_mmhg)

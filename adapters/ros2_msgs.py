@@ -16,7 +16,11 @@ lines below ``pkg/Type`` fields. So ``ros2 bag info`` / ``ros2 bag play``, Foxgl
 Types: the standard ``sensor_msgs/msg/JointState`` and ``geometry_msgs/msg/WrenchStamped`` and
 the project's own package ``wrenchd_msgs`` (:data:`MSG_TEXT`). CDR (de)serialisation is the
 ``rosbags`` type store's: ROS 2 Humble's definitions plus ``wrenchd_msgs``, registered from the
-texts below. A file an earlier version wrote, whose definition of a type differs from today's
+texts below. This module owns the type stores every adapter uses (:func:`typestore`, and
+:func:`jazzy_typestore` for REP-2011 type hashes) and the conversions between nanosecond stamps
+and ``builtin_interfaces/msg/Time`` (:data:`NS_PER_S`, :func:`split_ns`, :func:`stamp`,
+:func:`header`, :func:`time_ns`). Profile and encoding names are mcap's own
+(:mod:`mcap.well_known`). A file an earlier version wrote, whose definition of a type differs from today's
 (``wrenchd_msgs/msg/Estimate`` was float64 with ``predicted`` torques before it became float32),
 is decoded with the definition stored in it (:func:`deserialize`).
 """
@@ -29,12 +33,11 @@ from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
+from mcap.well_known import MessageEncoding, SchemaEncoding
 
 from wrenchd.models.errors import DataError
 
-PROFILE = "ros2"
-SCHEMA_ENCODING = "ros2msg"
-MESSAGE_ENCODING = "cdr"
+#: nanoseconds per second: every stamp in wrenchd is integer nanoseconds
 NS_PER_S = 1_000_000_000
 
 TIME = "builtin_interfaces/msg/Time"
@@ -152,7 +155,8 @@ def full_definition(typename: str) -> str:
 
 @functools.cache
 def typestore():
-    """The ``rosbags`` type store: ROS 2 Humble's types and ``wrenchd_msgs`` (built once)."""
+    """The ``rosbags`` type store: ROS 2 Humble's types and ``wrenchd_msgs`` (built once, ~0.3 s):
+    what every CDR message wrenchd reads or writes is (de)serialised with."""
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
     store = get_typestore(Stores.ROS2_HUMBLE)
@@ -163,14 +167,28 @@ def typestore():
     return store
 
 
+@functools.cache
+def jazzy_typestore():
+    """ROS 2 Jazzy's types (built once): the definitions REP-2011 type hashes (RIHS01) are
+    computed from, as rmw_zenoh's keys carry them (Humble has no type hashes)."""
+    from rosbags.typesys import Stores, get_typestore
+
+    return get_typestore(Stores.ROS2_JAZZY)
+
+
 def message_class(typename: str):
     """The ``rosbags`` dataclass of ``typename``."""
     return typestore().types[typename]
 
 
+def split_ns(stamp_ns: int) -> tuple[int, int]:
+    """``(sec, nanosec)`` of ``stamp_ns`` [ns], as ``builtin_interfaces/msg/Time`` holds it."""
+    return divmod(int(stamp_ns), NS_PER_S)
+
+
 def stamp(stamp_ns: int):
     """``builtin_interfaces/msg/Time`` of ``stamp_ns`` [ns] (0 <= stamp < 2**31 s)."""
-    sec, nanosec = divmod(int(stamp_ns), NS_PER_S)
+    sec, nanosec = split_ns(stamp_ns)
     return message_class(TIME)(sec=sec, nanosec=nanosec)
 
 
@@ -179,9 +197,18 @@ def header(stamp_ns: int, frame_id: str):
     return message_class(HEADER)(stamp=stamp(stamp_ns), frame_id=frame_id)
 
 
-def stamp_ns_of(time_msg) -> int:
-    """Nanoseconds of a ``builtin_interfaces/msg/Time``."""
-    return int(time_msg.sec) * NS_PER_S + int(time_msg.nanosec)
+def time_ns(time_msg, where: str = "header.stamp") -> int:
+    """Nanoseconds of a ``builtin_interfaces/msg/Time`` (``where`` names it in the error).
+
+    Raises:
+        DataError: ``sec`` is negative or ``nanosec`` is not in [0, 1e9).
+    """
+    sec, nanosec = int(time_msg.sec), int(time_msg.nanosec)
+    if sec < 0:
+        raise DataError(f"{where}.sec out of range [0, 2^31): {sec}")
+    if not 0 <= nanosec < NS_PER_S:
+        raise DataError(f"{where}.nanosec out of range: {nanosec}")
+    return sec * NS_PER_S + nanosec
 
 
 def serialize(message) -> bytes:
@@ -293,7 +320,7 @@ def to_fields(message) -> Any:
 class Ros2Channels:
     """Registers ROS 2 channels on an mcap :class:`~mcap.writer.Writer` (one schema per type).
 
-    The writer must have been started with profile :data:`PROFILE`.
+    The writer must have been started with profile ``mcap.well_known.Profile.ROS2``.
     """
 
     def __init__(self, writer) -> None:
@@ -306,8 +333,8 @@ class Ros2Channels:
         if topic not in self.ids:
             if typename not in self._schemas:
                 self._schemas[typename] = self.writer.register_schema(
-                    typename, SCHEMA_ENCODING, full_definition(typename).encode())
+                    typename, SchemaEncoding.ROS2, full_definition(typename).encode())
             self.ids[topic] = self.writer.register_channel(
-                topic, MESSAGE_ENCODING, self._schemas[typename],
+                topic, MessageEncoding.CDR, self._schemas[typename],
                 {"offered_qos_profiles": OFFERED_QOS})
         return self.ids[topic]

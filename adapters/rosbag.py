@@ -29,6 +29,7 @@ import numpy as np
 from wrenchd.adapters.messages import (
     JOINT_STATE_TYPE, decode_joint_state, encode_joint_state, stamp_ns_of,
 )
+from wrenchd.adapters.ros2_msgs import NS_PER_S, typestore
 from wrenchd.models.errors import AdapterError, DataError
 from wrenchd.models.series import JOINT_NAMES, N_JOINTS, JointStates
 
@@ -38,7 +39,6 @@ DEFAULT_JAW_TOPIC = "/PSM1/jaw/measured_js"
 SETPOINT_TOPIC = "/PSM1/servo_jp"
 JAW_NAME = "jaw"
 STORAGES = ("mcap", "sqlite3")
-_NS = 1_000_000_000
 
 
 @dataclass(frozen=True)
@@ -192,7 +192,7 @@ def read_joint_states_bag(path: str | os.PathLike[str], topic: str = DEFAULT_TOP
         reader.close()
     _check_arm_names(path, arm)
     start = int(arm.stamps[0])
-    t = (arm.stamps - start) / _NS
+    t = (arm.stamps - start) / NS_PER_S
     js = JointStates(t, arm.position[:, :N_JOINTS], arm.velocity[:, :N_JOINTS],
                      arm.effort[:, :N_JOINTS])
     jaw = jaw_t = None
@@ -203,7 +203,7 @@ def read_joint_states_bag(path: str | os.PathLike[str], topic: str = DEFAULT_TOP
         if jaw_series.time_source != arm.time_source:
             raise DataError(f"{path}: {jaw_topic} is timed by {jaw_series.time_source} stamps, "
                             f"{topic} by {arm.time_source} stamps")
-        jaw_t = (jaw_series.stamps - start) / _NS
+        jaw_t = (jaw_series.stamps - start) / NS_PER_S
         jaw = np.column_stack([jaw_series.position[:, 0], jaw_series.velocity[:, 0],
                                jaw_series.effort[:, 0]])
     elif arm.position.shape[1] == N_JOINTS + 1:
@@ -250,7 +250,6 @@ def write_joint_states_bag(path: str | os.PathLike[str], js: JointStates,
         DataError: bad ``storage``, ``jaw`` shape, or stamps out of range.
     """
     from rosbags.rosbag2 import StoragePlugin, Writer
-    from rosbags.typesys import Stores, get_typestore
 
     if storage not in STORAGES:
         raise DataError(f"storage must be one of {list(STORAGES)}, got {storage!r}")
@@ -261,7 +260,7 @@ def write_joint_states_bag(path: str | os.PathLike[str], js: JointStates,
     if path.exists():
         raise AdapterError(f"{path} exists; a bag is written to a new path")
     stamps = np.array([start_ns + stamp_ns_of(float(t)) for t in js.t], dtype=np.int64)
-    if len(js) and (stamps[0] < 0 or stamps[-1] >= 2**31 * _NS):
+    if len(js) and (stamps[0] < 0 or stamps[-1] >= 2**31 * NS_PER_S):
         raise DataError("stamps must lie in [0, 2^31) s (ROS builtin_interfaces/Time)")
     if jaw is not None:
         jaw = np.asarray(jaw, dtype=np.float64)
@@ -269,7 +268,7 @@ def write_joint_states_bag(path: str | os.PathLike[str], js: JointStates,
             raise DataError(f"jaw must have shape ({len(js)}, 3), got {jaw.shape}")
     plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
     target = Path(tempfile.mkdtemp(prefix=".bag-", dir=path.parent)) / "bag" if bare else path
-    store = get_typestore(Stores.ROS2_HUMBLE)
+    store = typestore()
     empty = np.zeros(0)
     try:
         with Writer(target, version=9, storage_plugin=plugin) as writer:

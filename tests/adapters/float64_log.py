@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import orjson
+from mcap.well_known import MessageEncoding, Profile, SchemaEncoding
 from mcap.writer import CompressionType, Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
@@ -69,7 +70,7 @@ def write_float64_daemon_log(path: Path, session: Session, estimates: GroundTrut
     store = _store()
     with open(path, "wb") as f:
         writer = Writer(f, compression=CompressionType.ZSTD)
-        writer.start(profile=ros2.PROFILE, library="wrenchd.adapters.mcap_log/2")
+        writer.start(profile=Profile.ROS2, library="wrenchd.adapters.mcap_log/2")
         writer.add_metadata("wrenchd.session", {"format": "wrenchd.session/1", "json": json.dumps(
             {"source": "wrenchd daemon", "arm": "PSM1"})})
         ids = {}
@@ -78,8 +79,8 @@ def write_float64_daemon_log(path: Path, session: Session, estimates: GroundTrut
                                 ("/wrenchd/events", ros2.EVENT), ("/wrenchd/status", ros2.STATUS)):
             definition = (DEFINITION_FLOAT64 if typename == ros2.ESTIMATE
                           else ros2.full_definition(typename))
-            schema = writer.register_schema(typename, ros2.SCHEMA_ENCODING, definition.encode())
-            ids[topic] = writer.register_channel(topic, ros2.MESSAGE_ENCODING, schema,
+            schema = writer.register_schema(typename, SchemaEncoding.ROS2, definition.encode())
+            ids[topic] = writer.register_channel(topic, MessageEncoding.CDR, schema,
                                                  {"offered_qos_profiles": ros2.OFFERED_QOS})
         js = session.joint_states
         for i in range(len(js)):
