@@ -8,7 +8,7 @@ PR #601, which the humble branch took in its 0.1.2 release of 2025-06-19; the ro
 branch's design.md of October 2024 still lacked these sections), sections "Topic and Service name mapping to Zenoh key expressions", "Graph Cache"
 and "Publishers". What the document leaves to the code was read in the same repository's
 ``rmw_zenoh_cpp/src/detail``: ``liveliness_utils.cpp`` (a GID is the XXH3-128 of the entity's
-token, low half first; the QoS part of a token names only what differs from the default
+token, low half first, computed here with the ``xxhash`` package; the QoS part of a token names only what differs from the default
 QoS), ``qos.cpp`` (that default: reliable, volatile, keep-last 42, infinite deadline,
 lifespan and lease, automatic liveliness) and ``rmw_publisher_data.cpp`` (sequence numbers
 start at 1; the source timestamp is the system time at publication; no zenoh encoding is set).
@@ -38,7 +38,9 @@ from dataclasses import dataclass
 from functools import lru_cache
 from typing import NamedTuple
 
-from wrenchd.adapters.xxh3 import xxh3_128
+import xxhash
+
+from wrenchd.adapters.ros2_msgs import jazzy_typestore
 from wrenchd.models.errors import ConfigError, DataError
 
 ADMIN_SPACE = "@ros2_lv"
@@ -114,9 +116,7 @@ def dds_type_name(typename: str) -> str:
 def type_hash(typename: str) -> str:
     """The RIHS01 type hash (REP-2011) of a ROS 2 Jazzy message type, e.g.
     ``RIHS01_a13ee3a3...`` for ``sensor_msgs/msg/JointState``."""
-    from rosbags.typesys import Stores, get_typestore
-
-    store = get_typestore(Stores.ROS2_JAZZY)
+    store = jazzy_typestore()
     if typename not in store.types:
         raise ConfigError(f"unknown ROS 2 message type {typename!r}")
     return store.hash_rihs01(typename)
@@ -151,8 +151,7 @@ def endpoint_token(kind: str, domain_id: int, zid: str, node_id: int, entity_id:
 def gid_of(token: str) -> bytes:
     """An entity's 16-byte GID: the XXH3-128 of its liveliness token, the low 64 bits first,
     each half little-endian (how rmw_zenoh copies the hash into the GID)."""
-    low, high = xxh3_128(token.encode())
-    return low.to_bytes(8, "little") + high.to_bytes(8, "little")
+    return xxhash.xxh3_128_intdigest(token.encode()).to_bytes(GID_SIZE, "little")
 
 
 class Attachment(NamedTuple):

@@ -6,12 +6,12 @@ import struct
 import time
 
 import pytest
+import xxhash
 
 from wrenchd.adapters.rmw_zenoh import (ATTACHMENT_SIZE, PUBLISHER, SUBSCRIPTION, Qos, Stamper,
                                         decode_attachment, dds_type_name, encode_attachment,
                                         endpoint, endpoint_token, gid_of, node_token,
                                         topic_key, type_hash)
-from wrenchd.adapters.xxh3 import xxh3_128_hex
 from wrenchd.models.errors import ConfigError, DataError
 
 #: RIHS01 hashes as quoted in public sources (Jazzy): std_msgs/String in the rmw_zenoh design
@@ -79,8 +79,20 @@ def test_namespaced_node_mangles_its_namespace():
 def test_gid_is_the_tokens_xxh3_low_half_first():
     token = endpoint_token(PUBLISHER, 0, "ab", 0, 2, "wrenchd", "/PSM1/wrenchd/measured_cf",
                            "geometry_msgs/msg/WrenchStamped")
-    digest = bytes.fromhex(xxh3_128_hex(token.encode()))      # high half first, big-endian
+    digest = xxhash.xxh3_128_digest(token.encode())         # high half first, big-endian
     assert gid_of(token) == digest[8:][::-1] + digest[:8][::-1]
+
+
+def test_gid_of_the_design_documents_listener_subscription():
+    """A regression vector: the subscription token of the rmw_zenoh design document's listener
+    example (187 bytes), whose XXH3-128 libxxhash 0.8.4 gives as
+    ``e61dca625437c5a655fe0883538a1476`` (high half first)."""
+    token = ("@ros2_lv/2/aac3178e146ba6f1fc6e6a4085e77f21/0/10/MS/%/%/listener/%chatter/"
+             "std_msgs::msg::dds_::String_/RIHS01_df668c740482bbd48fb39d76a70dfd4bd59db128802"
+             "1743503259e948f6b1a18/::,10:,:,:,,")
+    assert len(token) == 187
+    assert gid_of(token) == (bytes.fromhex("55fe0883538a1476")[::-1]
+                             + bytes.fromhex("e61dca625437c5a6")[::-1])
 
 
 def parse_attachment(raw: bytes) -> tuple[int, int, bytes]:

@@ -29,13 +29,13 @@ from pathlib import Path
 import numpy as np
 import orjson
 import pytest
+import xxhash
 import zenoh
 from mcap.reader import make_reader
 from rosbags.typesys import Stores, get_typestore
 
 from wrenchd.adapters.sim.scenarios import run_scenario
 from wrenchd.adapters.sim.simulator import SimulatorConfig
-from wrenchd.adapters.xxh3 import xxh3_128
 from tests.support import free_port, readline_within, stop_within, wait_for
 
 DOMAIN = 17
@@ -222,8 +222,8 @@ def test_every_wrench_carries_rmw_zenohs_attachment(run):
     assert len(gids) == 1
     publisher = [t for t in run["tokens"] if t.split("/")[5] == "MP"]
     assert len(publisher) == 1
-    low, high = xxh3_128(publisher[0].encode())            # GID: XXH3-128 of the token
-    assert gids == {low.to_bytes(8, "little") + high.to_bytes(8, "little")}
+    digest = xxhash.xxh3_128_intdigest(publisher[0].encode())   # GID: XXH3-128 of the token
+    assert gids == {digest.to_bytes(16, "little")}
 
 
 def test_liveliness_tokens_of_the_node_its_subscription_and_publisher(run):
