@@ -1,31 +1,15 @@
 """Hidden-effect cases: simulate a recording with an effect the given model lacks.
 
-For each effect of the library that free motion can reveal, :func:`make_case` simulates the
-PSM (the ``free-space`` scenario's workspace and physics: rigid body, Coulomb, viscous and
-Stribeck friction, wrist cable coupling) with that effect switched on at a random magnitude
-in its realistic range, and gives the discrepancy workflow the model *without* it.
-:func:`judge` then checks that the effect is named first, its parameters are within the
-stated tolerance, and the held-out gap (RMS above the noise floor, on the joints the effect
-acts on) shrank by at least half.
-
-Realistic ranges (sources in each effect's module docstring):
-
-=====================  ==========================================================================
-coulomb_friction       fc = library default (WPI identification) x U(0.5, 2) per joint
-viscous_friction       fv = default x U(0.5, 2) per joint
-stribeck_friction      fs = default x U(0.5, 2) (yaw, pitch, insertion), vs = default x U(0.5, 2)
-joint_offset           |offset| U(0.02, 0.3) N m or N on joints 1-3, U(0.003, 0.03) N m on 4-6
-                       (WPI ``Fo``), random sign
-spring                 roll and wrist: stiffness U(0.002, 0.02) N m/rad (WPI wrist K ~0.002 and
-                       10x), rest U(-0.3, 0.3) rad
-seal_friction          insertion fc U(0.25, 3) N (van den Dobbelsteen 2007), fs_excess and the
-                       roll values scaled alike, sigma2 default x U(0.5, 2)
-body_wall              insufflation U(8, 16) mmHg, other parameters default
-payload_mass           link 2 (parallelogram, WPI load position) U(0.05, 0.3) kg, or the
-                       instrument tip (link 6 origin) U(0.05, 0.2) kg
-cable_coupling         motor_fc U(0.002, 0.008) N m, motor_fv U(0.0015, 0.006) N m s/rad
-drift                  Coulomb friction wear, linear: fc grows by U(30, 100) % over the recording
-=====================  ==========================================================================
+The discrepancy workflow (:mod:`wrenchd.models.discrepancy`) is only worth trusting on real
+data if it finds effects whose truth is known. For each effect of the library that free motion
+can reveal, :func:`make_case` simulates the PSM (the ``free-space`` scenario's workspace and
+physics: rigid body, Coulomb, viscous and Stribeck friction, wrist cable coupling) with that
+effect switched on at a random magnitude in its realistic range (:func:`sample_effect`, with
+the ranges and their sources: WPI's identification, van den Dobbelsteen 2007), and gives the
+workflow the model *without* it. :func:`judge` then checks that the effect is named first, its
+parameters are within the stated tolerance (:data:`TOLERANCE`, relative), and the held-out gap
+(RMS above the noise floor [N m; N], on the joints the effect acts on) shrank by at least
+:data:`MIN_SHRINK`.
 
 Not tested: ``external_contact`` (not free motion) and ``inertial_delta`` (the identified rigid
 body, never a candidate); see :data:`wrenchd.models.discrepancy.candidates.NOT_CANDIDATES`.
@@ -54,7 +38,7 @@ HIDDEN_EFFECTS = ("coulomb_friction", "viscous_friction", "stribeck_friction", "
 PAIRS = (("payload_mass", "seal_friction"), ("joint_offset", "viscous_friction"),
          ("spring", "body_wall"), ("cable_coupling", "payload_mass"))
 NOISE_STD = np.asarray(SensorConfig().effort_noise_std)
-#: Relative tolerance of the checked parameters (module docstring of :func:`judge`).
+#: Relative tolerance of the checked parameters (:func:`judge`).
 TOLERANCE = {"coulomb_friction": 0.15, "viscous_friction": 0.15, "stribeck_friction": 0.3,
              "joint_offset": 0.1, "spring": 0.2, "seal_friction": 0.2, "body_wall": 0.2,
              "payload_mass": 0.1, "cable_coupling": 0.25, "drift": 0.25}
@@ -71,7 +55,27 @@ def _scaled(rng, name, key, lo=0.5, hi=2.0):
 
 
 def sample_effect(name: str, rng: np.random.Generator, duration_s: float) -> dict[str, Any]:
-    """A random effect spec of ``name`` in its realistic range (module docstring)."""
+    """A random effect spec of ``name`` in its realistic range.
+
+    Ranges (sources in each effect's module docstring):
+
+    =====================  ==========================================================================
+    coulomb_friction       fc = library default (WPI identification) x U(0.5, 2) per joint
+    viscous_friction       fv = default x U(0.5, 2) per joint
+    stribeck_friction      fs = default x U(0.5, 2) (yaw, pitch, insertion), vs = default x U(0.5, 2)
+    joint_offset           |offset| U(0.02, 0.3) N m or N on joints 1-3, U(0.003, 0.03) N m on 4-6
+                           (WPI ``Fo``), random sign
+    spring                 roll and wrist: stiffness U(0.002, 0.02) N m/rad (WPI wrist K ~0.002 and
+                           10x), rest U(-0.3, 0.3) rad
+    seal_friction          insertion fc U(0.25, 3) N (van den Dobbelsteen 2007), fs_excess and the
+                           roll values scaled alike, sigma2 default x U(0.5, 2)
+    body_wall              insufflation U(8, 16) mmHg, other parameters default
+    payload_mass           link 2 (parallelogram, WPI load position) U(0.05, 0.3) kg, or the
+                           instrument tip (link 6 origin) U(0.05, 0.2) kg
+    cable_coupling         motor_fc U(0.002, 0.008) N m, motor_fv U(0.0015, 0.006) N m s/rad
+    drift                  Coulomb friction wear, linear: fc grows by U(30, 100) % over the recording
+    =====================  ==========================================================================
+    """
     if name == "coulomb_friction":
         return {"name": name, "params": {"fc": _scaled(rng, name, "fc")}}
     if name == "viscous_friction":

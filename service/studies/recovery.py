@@ -1,40 +1,21 @@
 """The insufflation-recovery measure (``wrenchd recovery``), per seed and per setting.
 
-``run_recovery`` simulates ``insufflation-change`` (the pressure steps 12 -> 20 mmHg at
-40 % of the session) for each seed, replays it through the daemon's pipeline once per
-``--set`` (a JSON object of ``PipelineConfig`` overrides merged into the defaults; none: the
-defaults), and reports per seed the free-motion force RMSE before the change and after 60 s
-of free motion (:func:`wrenchd.service.replay.metrics.recovery_levels`), their ratio (target
-<= 1.10), how many samples offered to training were truly in contact (target 0) and what
-share of the truly free motion in the minute after the change was offered; then per setting
-the mean ratio, how many seeds are within 1.10 and the worst.
-
-With ``--settled`` each seed is also replayed as ``insufflation-high`` (the same motion,
-contacts and noise at 20 mmHg from the start) and the row gives that replay's error over the
-same window after the change (``settled_post_n``) and ``excess`` = post / settled: how far the
-adapted net is from one that learnt the new pressure from the start. Post / pre mixes that
-with how much harder the new set-up is and how much the net keeps improving anyway; excess
-does not.
-
-With ``--bins SECONDS`` each row also gives the free-motion error per bin from the change to
-the end (``post_bins_n``; with ``--settled`` the settled replay's, ``settled_bins_n``, and
-their ratio, ``excess_bins``): how the gap evolves, where the post window is one point of it.
-
-With ``--session SESSION`` (repeatable; any form ``wrenchd replay`` takes, e.g. a ``concat:``
-of real recordings) the measure runs on those sessions instead of the simulated seeds, around
-each one's first set-up change (``--settled`` does not apply).
-
-With ``--announce`` the step is announced to the pipeline at its time, as the daemon's
-``setup`` key would be told by the insufflator or the OR console
-(:meth:`wrenchd.service.pipeline.arm.ArmPipeline.setup_change`): adaptation gets eager and
-the adapter carries its buffer over to the new body wall stiffness
-(:mod:`wrenchd.models.body_wall_tracker`).
+Insufflation changes the body wall's stiffness during surgery; the lifelong adaptation is
+worth having if, a minute after such a change, the estimate is as good as before it. The
+measure simulates ``insufflation-change`` (the pressure steps 12 -> 20 mmHg at 40 % of the
+session) for each seed, replays it through the daemon's pipeline once per setting (a JSON
+object of ``PipelineConfig`` overrides merged into the defaults), and reports per seed the
+free-motion force RMSE [N] before the change and after 60 s of free motion
+(:func:`wrenchd.service.replay.metrics.recovery_levels`), their ratio (target <= 1.10), how
+many samples offered to training were truly in contact (target 0) and what share of the truly
+free motion in the minute after the change was offered; then per setting the mean ratio, how
+many seeds are within 1.10 and the worst. Its options (a settled replay, bins, an announced
+change, recorded sessions) are at :func:`run_recovery` and in docs/replay-and-policies.md
+("The insufflation-recovery measure").
 
 Example::
 
     wrenchd recovery --seeds 3,4,5 --set '{}' --set '{"adaptation": {"refit_shrink": 0}}'
-    wrenchd recovery --seeds 3,4 --settled
-    wrenchd recovery --seeds 3,4 --settled --bins 20 --duration 600
     wrenchd recovery --seeds 3,4,5,6,7,8 --settled --announce
 """
 
@@ -107,9 +88,21 @@ def run_recovery(seeds: list[int], settings: list[str], duration_s: float = 220.
                  model: str = "seal", progress=print, settled: bool = False,
                  bin_s: float | None = None, announce: bool = False,
                  sessions_given: list[str] | None = None) -> dict:
-    """The measure for every seed and setting (see the module docstring); with
-    ``sessions_given`` (session specs, :mod:`wrenchd.service.replay.source`) for each of those
-    instead of the simulated seeds, around each one's first set-up change."""
+    """The measure for every seed and setting (``settings``: JSON texts; none: the defaults).
+
+    ``settled``: each seed is also replayed as ``insufflation-high`` (the same motion, contacts
+    and noise at 20 mmHg from the start), and the row gives that replay's error over the same
+    window after the change (``settled_post_n``) and ``excess`` = post / settled: how far the
+    adapted net is from one that learnt the new pressure from the start. Post / pre mixes that
+    with how much harder the new set-up is and how much the net keeps improving anyway; excess
+    does not. ``bin_s``: each row also gives the free-motion error per bin from the change to
+    the end (``post_bins_n``; settled: ``settled_bins_n`` and their ratio, ``excess_bins``).
+    ``announce``: the step is announced to the pipeline at its time, as the daemon's ``setup``
+    key would be (:meth:`wrenchd.service.pipeline.arm.ArmPipeline.setup_change`), so the
+    adapter carries its buffer over (:mod:`wrenchd.models.body_wall_tracker`).
+    ``sessions_given`` (session specs, :mod:`wrenchd.service.replay.source`): the measure runs
+    on those instead of the simulated seeds, around each one's first set-up change.
+    """
     if bin_s is not None and not 0 < bin_s < float("inf"):
         raise ConfigError(f"--bins must be a positive number of seconds, got {bin_s:g}")
     if sessions_given and settled:
