@@ -9,10 +9,9 @@ from wrenchd.models.estimator.free_space import FreeSpaceModel
 from wrenchd.models.estimator.pretrained import PRETRAINED, load_pretrained, pretrained_path
 
 
-#: RMSE / torque std on a fresh 30 s session (seed 777, never trained on). Measured with the
-#: shipped weights: base per joint 0.60 0.39 0.17 0.19 0.17 0.19 (mean 0.28), seal 0.68 0.38
-#: 0.06 0.10 0.15 0.19 (mean 0.26); the bounds leave a margin (retraining changes them a
-#: little, a broken model predicts about 1 or more).
+#: The scenario each shipped model is checked on: a fresh 30 s session (seed 777, never
+#: trained on), scored as RMSE / torque std per joint. The bounds leave room for a retrained
+#: model and fail a broken one, whose ratio is about 1 or more.
 SCENARIO = {"base": "free-space", "seal": "free-space-seal"}
 
 @pytest.mark.parametrize("name", PRETRAINED)

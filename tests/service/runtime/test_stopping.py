@@ -39,7 +39,7 @@ _REENTER = textwrap.dedent("""
     kind = sys.argv[1]
 
     with StopSignals() as stop:
-        if kind == "event":                       # the handler the daemon used to have
+        if kind == "event":                       # a handler that takes a lock: it hangs
             event = threading.Event()
             def handler(signum, frame):
                 event.set()
