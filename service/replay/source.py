@@ -228,31 +228,10 @@ def announced_changes(session: Session) -> list[tuple[float, dict]]:
 
 
 def logged_setup_changes(path: str) -> list[tuple[float, dict]]:
-    """The ``setup_change`` events of a daemon log (MCAP, ``/wrenchd/events``; a ROS 2 log's
-    ``wrenchd_msgs/msg/Event`` or a JSON log's message): their sample time [s] and detail.
+    """The ``setup_change`` events of a daemon log (MCAP, ``/wrenchd/events``, read by
+    :func:`~wrenchd.adapters.replay_mcap.logged_events`): their sample time [s] and detail.
     Files without that topic give an empty list."""
-    from mcap.exceptions import McapError
-    from mcap.reader import NonSeekingReader
+    from wrenchd.adapters.replay_mcap import logged_events
 
-    from wrenchd.adapters.mcap_log import TOPIC_EVENTS, message_fields
-    from wrenchd.models.errors import DataError
-
-    out = []
-    with open(path, "rb") as f:
-        # read in file order (sorting by log time would read the whole file first and keep
-        # nothing of a crashed daemon's), to the end or to where the file stops
-        try:
-            for schema, channel, message in NonSeekingReader(f).iter_messages(
-                    topics=[TOPIC_EVENTS], log_time_order=False):
-                try:
-                    event = message_fields(channel.message_encoding,
-                                           schema.name if schema else "", message.data,
-                                           schema.data if schema else None)
-                except DataError:
-                    continue
-                if isinstance(event, dict) and event.get("kind") == "setup_change":
-                    detail = {k: v for k, v in event.items() if k not in ("t", "kind")}
-                    out.append((float(event["t"]), detail))
-        except (McapError, EOFError, ValueError):
-            pass
-    return out
+    return [(float(event["t"]), {k: v for k, v in event.items() if k not in ("t", "kind")})
+            for event in logged_events(path) if event.get("kind") == "setup_change"]
