@@ -72,6 +72,24 @@ def wait_for_subscriber(publisher, timeout_s: float, pause=None) -> bool:
     return False
 
 
+def ring_subscriber(session, key: str, capacity: int):
+    """A subscriber on ``key`` whose samples queue inside zenoh (its ring channel of
+    ``capacity`` samples, in Rust: no Python callback, no GIL per sample; the oldest is
+    dropped when full), taken with its ``recv`` (blocking) and ``try_recv`` (None when empty)."""
+    import zenoh
+
+    return session.declare_subscriber(key, zenoh.handlers.RingChannel(capacity))
+
+
+def local_publisher(session, key: str, encoding: str):
+    """A publisher on ``key`` whose samples, marked with the zenoh encoding ``encoding``, reach
+    only this session's own subscribers (``Locality.SESSION_LOCAL``)."""
+    import zenoh
+
+    return session.declare_publisher(key, encoding=zenoh.Encoding(encoding),
+                                     allowed_destination=zenoh.Locality.SESSION_LOCAL)
+
+
 def zenoh_encoding(encoding: str):
     """The ``zenoh.Encoding`` to put payloads of wire encoding ``encoding`` (json, cdr) with."""
     import zenoh

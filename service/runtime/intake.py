@@ -28,9 +28,7 @@ import os
 import time
 from collections.abc import Sequence
 
-import zenoh
-
-from wrenchd.adapters.zenoh_io import sample_mark
+from wrenchd.adapters.zenoh_io import local_publisher, ring_subscriber, sample_mark
 from wrenchd.models.errors import ConfigError
 
 #: the encoding that marks a tick (never a joint state)
@@ -90,10 +88,8 @@ class ChannelIntake:
         self.index = {key: i for i, key in enumerate(keys)}
         self.full = 0                # passes that found the channel full (samples lost)
         self.foreign = 0             # samples on a matching key that no arm serves
-        self._sub = session.declare_subscriber(pattern, zenoh.handlers.RingChannel(capacity))
-        self._tick = session.declare_publisher(
-            keys[0], encoding=zenoh.Encoding(TICK_ENCODING),
-            allowed_destination=zenoh.Locality.SESSION_LOCAL)
+        self._sub = ring_subscriber(session, pattern, capacity)
+        self._tick = local_publisher(session, keys[0], TICK_ENCODING)
         self._closed = False
 
     def take(self) -> list[list[tuple[int, bytes, str | None]]] | None:
