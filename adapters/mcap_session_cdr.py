@@ -75,8 +75,8 @@ def _wrench_fields(m) -> tuple:
 
 
 def _torque_fields(m) -> tuple:
-    return (ros2.time_ns(m.header.stamp), bool(m.in_contact), m.position, m.velocity, m.acceleration,
-            m.internal, m.external, {e.name: e.torque for e in m.effects})
+    return (ros2.time_ns(m.header.stamp), bool(m.in_contact), m.position, m.velocity,
+            m.acceleration, m.internal, m.external, {e.name: e.torque for e in m.effects})
 
 
 #: per topic: the fields of a decoded message, in the order of the JSON reader's tuples

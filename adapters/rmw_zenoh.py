@@ -5,13 +5,15 @@ Source: ``docs/design.md`` of the ros2/rmw_zenoh repository, read at commit
 99a6a2bd10b949052f4f12c5854825dc005e95a5 (the snapshot does not record its branch; its text is
 the zenoh 1.x design of the Jazzy-era releases with the key-less attachment of rmw_zenoh
 PR #601, which the humble branch took in its 0.1.2 release of 2025-06-19; the rolling
-branch's design.md of October 2024 still lacked these sections), sections "Topic and Service name mapping to Zenoh key expressions", "Graph Cache"
-and "Publishers". What the document leaves to the code was read in the same repository's
-``rmw_zenoh_cpp/src/detail``: ``liveliness_utils.cpp`` (a GID is the XXH3-128 of the entity's
-token, low half first, computed here with the ``xxhash`` package; the QoS part of a token names only what differs from the default
-QoS), ``qos.cpp`` (that default: reliable, volatile, keep-last 42, infinite deadline,
-lifespan and lease, automatic liveliness) and ``rmw_publisher_data.cpp`` (sequence numbers
-start at 1; the source timestamp is the system time at publication; no zenoh encoding is set).
+branch's design.md of October 2024 still lacked these sections), sections "Topic and Service
+name mapping to Zenoh key expressions", "Graph Cache" and "Publishers". What the document
+leaves to the code was read in the same repository's ``rmw_zenoh_cpp/src/detail``:
+``liveliness_utils.cpp`` (a GID is the XXH3-128 of the entity's token, low half first,
+computed here with the ``xxhash`` package; the QoS part of a token names only what differs
+from the default QoS), ``qos.cpp`` (that default: reliable, volatile, keep-last 42, infinite
+deadline, lifespan and lease, automatic liveliness) and ``rmw_publisher_data.cpp`` (sequence
+numbers start at 1; the source timestamp is the system time at publication; no zenoh encoding
+is set).
 
 * **Topic key**: ``<domain_id>/<topic without its leading slash>/<DDS type name>/<type hash>``,
   e.g. ``0/PSM1/measured_js/sensor_msgs::msg::dds_::JointState_/RIHS01_a13ee3a3...``. The

@@ -20,7 +20,9 @@ texts below. This module owns the type stores every adapter uses (:func:`typesto
 :func:`jazzy_typestore` for REP-2011 type hashes) and the conversions between nanosecond stamps
 and ``builtin_interfaces/msg/Time`` (:data:`NS_PER_S`, :func:`split_ns`, :func:`stamp`,
 :func:`header`, :func:`time_ns`). Profile and encoding names are mcap's own
-(:mod:`mcap.well_known`). A file an earlier version wrote, whose definition of a type differs from today's
+(:mod:`mcap.well_known`).
+
+A file an earlier version wrote, whose definition of a type differs from today's
 (``wrenchd_msgs/msg/Estimate`` was float64 with ``predicted`` torques before it became float32),
 is decoded with the definition stored in it (:func:`deserialize`).
 """
