@@ -37,6 +37,7 @@ from typing import Any, Iterable
 import orjson
 from pydantic import BaseModel, ConfigDict, Field
 
+from wrenchd.adapters.ros2_msgs import split_ns
 from wrenchd.models.errors import AdapterError
 from wrenchd.models.series import JOINT_NAMES
 
@@ -103,7 +104,7 @@ class FoxgloveConfig(BaseModel):
 
 
 def _stamp(stamp_ns: int) -> dict[str, int]:
-    sec, nsec = divmod(int(stamp_ns), 1_000_000_000)
+    sec, nsec = split_ns(stamp_ns)
     return {"sec": sec, "nsec": nsec}
 
 
@@ -256,7 +257,7 @@ class ArmLiveView:
 
     # -- helpers ---------------------------------------------------------------------------
     def _joint_states(self, stamp_ns: int, torque) -> Any:
-        sec, nsec = divmod(int(stamp_ns), 1_000_000_000)
+        sec, nsec = split_ns(stamp_ns)
         joints = [self._JointState(name=name, effort=float(value))
                   for name, value in zip(JOINT_NAMES, torque)]
         return self._JointStates(timestamp=self._Timestamp(sec, nsec), joints=joints)
