@@ -15,9 +15,8 @@ from __future__ import annotations
 import json
 import os
 from collections.abc import Iterable, Mapping
-from typing import Any, Protocol
+from typing import Any
 
-import numpy as np
 from mcap.well_known import Profile
 from mcap.writer import CompressionType, Writer
 
@@ -32,24 +31,15 @@ METADATA_NAME = "wrenchd.replay"
 _FRAME = "psm_base"
 
 
-class EstimateColumns(Protocol):
-    """Per estimated sample: its stamp [ns] and the estimate (a replay's result has them)."""
-
-    stamp_ns: np.ndarray
-    wrench: np.ndarray
-    free: np.ndarray
-    score: np.ndarray
-    model_version: np.ndarray
-    restarted: np.ndarray
-    external: np.ndarray
-
-
-def write_replay_file(path: str | os.PathLike[str], estimates: EstimateColumns,
+def write_replay_file(path: str | os.PathLike[str], estimates: Any,
                       events: Iterable[tuple[int, str]], metadata: Mapping[str, Any]) -> None:
     """Write a replay's output to ``path`` (overwritten).
 
     Args:
-        estimates: the estimates, in stamp order.
+        estimates: the estimates, in stamp order: per sample, the arrays ``stamp_ns``,
+            ``wrench``, ``free``, ``score``, ``model_version``, ``restarted`` and ``external``
+            as a replay's result and :class:`~wrenchd.adapters.log_estimates.LoggedEstimates`
+            hold them.
         events: ``(stamp [ns], the event's JSON object as text)``; equal stamps keep their
             order.
         metadata: the ``wrenchd.replay`` record (JSON; values JSON cannot hold as text).
