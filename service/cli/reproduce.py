@@ -39,6 +39,7 @@ def reproduce(args: argparse.Namespace) -> int:
         PAPER_QUICK,
         QUICK,
         ReproductionConfig,
+        ReproductionResult,
         run_reproduction,
     )
     from wrenchd.service.studies.reproduction_report import PLOT, markdown, plot, pretrained_info
@@ -52,8 +53,8 @@ def reproduce(args: argparse.Namespace) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     if args.render_only:                          # tables and plot again, no training
-        results = json.loads((out / "results.json").read_text())
-        wall, command = results["wall_seconds"], results["command"]
+        results = ReproductionResult.read(out / "results.json")
+        wall, command = results.wall_seconds, results.command
     else:
         start = time.perf_counter()
         shipped = config.step1 is None
@@ -64,9 +65,11 @@ def reproduce(args: argparse.Namespace) -> int:
                                    device=args.device)
         wall = time.perf_counter() - start
         command = "wrenchd reproduce " + " ".join(args.argv)
-        results["wall_seconds"], results["command"] = round(wall, 1), command
-        stamp(results, run=meter)
-        (out / "results.json").write_text(json.dumps(results, indent=1) + "\n")
+        data = results.to_json()
+        data["wall_seconds"], data["command"] = round(wall, 1), command
+        stamp(data, run=meter)
+        results = ReproductionResult.model_validate(data)
+        (out / "results.json").write_text(json.dumps(data, indent=1) + "\n")
     plot(results, out / PLOT)
     (out / "README.md").write_text(markdown(results, command, wall) + args.notes_text)
     print(json.dumps({"out": str(out), "wall_seconds": round(wall, 1)}))

@@ -7,7 +7,7 @@ import sys
 
 import pytest
 
-from wrenchd.service.studies.reproduction import AXES, CONFIGS
+from wrenchd.service.studies.reproduction import AXES, CONFIGS, ReproductionResult
 
 
 def test_quick_reproduction_writes_the_report(tmp_path):
@@ -42,6 +42,9 @@ def test_quick_reproduction_writes_the_report(tmp_path):
     # The floor is the effort noise through J^-T: well under a newton on these trials.
     assert 0.0 < oracle < 0.5
     assert r["fast_vs_paper"]["fast"]["train_seconds"] > 0
+    # the typed result reads the file back and writes it out unchanged, key order included
+    again = ReproductionResult.read(out / "results.json").to_json()
+    assert json.dumps(again) == json.dumps(r)
 
 
 def test_paper_quick_records_patients_trials_seeds_intervals_and_both_floors(tmp_path):

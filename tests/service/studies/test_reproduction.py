@@ -7,14 +7,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from wrenchd.service.studies.reproduction import (
-    PAPER,
+from wrenchd.service.studies.reproduction import PAPER, ReproductionConfig, ReproductionResult
+from wrenchd.service.studies.reproduction_scoring import (
     Scorer,
     lowpass,
     mean_interval,
-    summarise,
     trial_errors,
 )
+from wrenchd.service.studies.reproduction_summary import summarise
 
 ROOT = Path(__file__).resolve().parents[3]
 
@@ -90,10 +90,10 @@ def test_oracle_floors_filtered_below_raw_and_the_truth_oracle_scores_zero(conta
     err = scorer.score(exact, filtered=False)["truth"]["rmse"]
     assert err[:, :3].mean() < 0.05 * raw
     cell = summarise([floors["filtered"]] * 2, floors, filtered=True)
-    assert cell["force_ratio"] == pytest.approx(1.0)
-    assert cell["force_ratio_raw_floor"] == pytest.approx(filt / raw)
-    lo, hi = cell["scores"]["truth"]["contact_rmse"]["force_ci95"]
-    assert lo <= cell["scores"]["truth"]["contact_rmse"]["force"] <= hi
+    assert cell.force_ratio == pytest.approx(1.0)
+    assert cell.force_ratio_raw_floor == pytest.approx(filt / raw)
+    lo, hi = cell.scores["truth"]["contact_rmse"].force_ci95
+    assert lo <= cell.scores["truth"]["contact_rmse"].force <= hi
 
 
 def test_paper_config_is_the_papers_scale():
@@ -104,12 +104,27 @@ def test_paper_config_is_the_papers_scale():
     assert PAPER.validation_sessions > 0 and PAPER.corr_recipe == "corr"
 
 
+@pytest.mark.parametrize("bad, named", [
+    ({"lengths_s": (40.0, 20.0)}, "lengths_s"),
+    ({"lengths_s": ()}, "lengths_s"),
+    ({"corr_overrides": {"epochs": 0}}, "corr_recipe 'corr-fast': epochs"),
+    ({"recurrent_overrides": {"windw": 20}}, "troc_recipe 'troc': windw"),
+    ({"troc_recipe": "trok"}, "unknown recipe 'trok'"),
+    ({"no_contact_trials": 1001}, "no_contact_trials"),
+    ({"step1": {"overrides": {"lr": -1.0}}}, "recipe 'free-space': lr"),
+])
+def test_reproduction_config_names_a_bad_value_when_built(bad, named):
+    with pytest.raises(ValueError, match=named):
+        ReproductionConfig(**bad)
+
+
 def test_committed_report_renders_as_it_was():
     from wrenchd.service.studies.reproduction_report import markdown
 
     folder = ROOT / "reports" / "paper-reproduction"
-    r = json.loads((folder / "results.json").read_text())
-    text = markdown(r, r["command"], r["wall_seconds"])
+    r = ReproductionResult.read(folder / "results.json")     # a report before per-trial scores
+    assert not r.scored and r.contact["Troc"][229.0].force_rmse > 0
+    text = markdown(r, r.command, r.wall_seconds)
     committed = (folder / "README.md").read_text()
     # every table of the committed report comes out the same
     for title in ("## Table 2", "## Table 3"):

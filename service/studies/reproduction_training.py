@@ -1,0 +1,140 @@
+"""Training of the reproduction's networks, one training seed at a time.
+
+Base and Seal on free motion (:func:`train_step1`, when the run trains step 1), the four
+per-length configurations on the trocar set of one length (:func:`train_length`), and the
+fast Corr recipe beside the paper's on the same data (:func:`fast_vs_paper`). Troc and Xfer
+early-stop on held-out trocar sessions when the run has them, else on the tail of each
+training series; Corr trains on the CPU.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any, Callable
+
+import numpy as np
+import torch
+from pydantic import BaseModel, ConfigDict
+
+from wrenchd.models.estimator.correction import Corr, Xfer
+from wrenchd.models.estimator.correction_training import fit_corr, fit_xfer
+from wrenchd.models.estimator.free_space import FreeSpaceModel
+from wrenchd.models.estimator.free_space_training import fit_free_space
+from wrenchd.models.estimator.training import TrainConfig, recipe
+from wrenchd.models.estimator.wrench import WrenchMap
+from wrenchd.models.series import JointStates, Session
+from wrenchd.service.studies.reproduction_config import TRAINED, ReproductionConfig
+from wrenchd.service.studies.reproduction_results import FastVsPaper, Fit, RecipeRun, Step1Fit
+from wrenchd.service.studies.reproduction_scoring import predicted_torques, wrench_rmse
+from wrenchd.service.studies.reproduction_summary import summary
+from wrenchd.service.studies.training import fit_step1_held_out, fit_xfer_held_out
+
+
+def seeded_recipe(name: str, overrides: dict[str, Any], seed: int) -> TrainConfig:
+    """The named recipe with ``overrides`` and the training seed put in."""
+    return recipe(name, **{**overrides, "seed": seed})
+
+
+class Step1Fits(BaseModel):
+    """Base and Seal trained with one training seed, and how each fit went."""
+
+    model_config = ConfigDict(arbitrary_types_allowed=True, frozen=True)
+
+    models: dict[str, FreeSpaceModel]
+    fits: dict[str, Step1Fit]
+
+
+def train_step1(config: ReproductionConfig, seed: int,
+                sets: dict[str, tuple[list[Session], list[Session]]], device: str | None,
+                log: Callable[[str], None]) -> Step1Fits:
+    """Base and Seal trained with training seed ``seed`` on their free-motion sets,
+    early-stopped on the held-out sessions."""
+    st = config.step1
+    models, fits = {}, {}
+    for name, (train, held) in sets.items():
+        rec = seeded_recipe(st.recipe, st.overrides, seed)
+        start = time.perf_counter()
+        res = fit_step1_held_out([s.joint_states for s in train],
+                                 [s.joint_states for s in held], rec, device=device)
+        seconds = time.perf_counter() - start
+        models[name] = res.model
+        fits[name] = Step1Fit(train_seconds=round(seconds, 2), score=res.validation["score"],
+                              epochs_run=res.validation["epochs_run"])
+        log(f"seed {seed} {name}: {res.validation['epochs_run']} epochs in {seconds:.1f} s, "
+            f"held-out score {res.validation['score']:.4f}")
+    return Step1Fits(models=models, fits=fits)
+
+
+class Trained(BaseModel):
+    """One trained configuration: its step-1 model, its step 2, the time and the fit."""
+
+    model_config = ConfigDict(arbitrary_types_allowed=True, frozen=True)
+
+    step1: FreeSpaceModel
+    step2: Corr | Xfer | None
+    seconds: float
+    fit: Fit
+
+
+class LengthTraining(BaseModel):
+    """The per-length configurations (:data:`TRAINED`) trained with one seed on one set."""
+
+    model_config = ConfigDict(frozen=True)
+
+    seed: int
+    length_s: float
+    configs: dict[str, Trained]
+
+
+def train_length(config: ReproductionConfig, seed: int, length_s: float,
+                 data: list[JointStates], held: list[JointStates], base: FreeSpaceModel,
+                 seal: FreeSpaceModel, device: str | None) -> LengthTraining:
+    """Troc, Base+Corr, Seal+Corr and Seal+Xfer trained on ``data`` (the trocar set of
+    ``length_s``) with training seed ``seed``; Troc and Xfer early-stop on ``held`` when
+    given."""
+    rec_troc = seeded_recipe(config.troc_recipe, config.recurrent_overrides, seed)
+    rec_xfer = seeded_recipe(config.xfer_recipe, config.recurrent_overrides, seed)
+    rec_corr = seeded_recipe(config.corr_recipe, config.corr_overrides, seed)
+    out: dict[str, Trained] = {}
+    for name in TRAINED:
+        start = time.perf_counter()
+        step2: Corr | Xfer | None = None
+        if name == "Troc":
+            res = (fit_step1_held_out(data, held, rec_troc, device=device) if held
+                   else fit_free_space(data, config=rec_troc, device=device))
+            step1 = res.model
+        elif name == "Seal+Xfer":
+            res = (fit_xfer_held_out(seal, data, held, rec_xfer, device=device) if held
+                   else fit_xfer(seal, data, config=rec_xfer, device=device))
+            step1, step2 = seal, res.model
+        else:
+            step1 = base if name == "Base+Corr" else seal
+            res = fit_corr(step1, data, config=rec_corr)
+            step2 = res.model
+        out[name] = Trained(step1=step1, step2=step2, seconds=time.perf_counter() - start,
+                            fit=Fit(score=res.validation["score"],
+                                    epochs_run=res.validation["epochs_run"]))
+    return LengthTraining(seed=seed, length_s=length_s, configs=out)
+
+
+def fast_vs_paper(config: ReproductionConfig, base: FreeSpaceModel, data: list[JointStates],
+                  contact: list[Session], wmap: WrenchMap, oracle_contact: np.ndarray,
+                  log: Callable[[str], None]) -> FastVsPaper:
+    """Base+Corr trained with the paper's recipe and the fast one on the same data."""
+    runs = {}
+    for label, name, overrides in (("paper", "corr", config.paper_corr_overrides),
+                                   ("fast", config.corr_recipe, config.corr_overrides)):
+        rec = recipe(name, **overrides)
+        start, cpu = time.perf_counter(), time.process_time()
+        res = fit_corr(base, data, config=rec)
+        seconds, cpu = time.perf_counter() - start, time.process_time() - cpu
+        tc = predicted_torques(base, res.model, contact)
+        runs[label] = RecipeRun(recipe=name, overrides=overrides,
+                                train_seconds=round(seconds, 2), cpu_seconds=round(cpu, 2),
+                                epochs_run=res.validation["epochs_run"],
+                                **summary(wrench_rmse(tc, contact, wmap),
+                                          oracle_contact).model_dump())
+        log(f"Corr recipe {name}: {seconds:.2f} s ({cpu:.2f} s CPU), contact force RMSE "
+            f"{runs[label].force_rmse:.3f} N")
+    return FastVsPaper(length_s=float(sum(js.t[-1] - js.t[0] + 1.0 / js.rate_hz for js in data)),
+                       threads=torch.get_num_threads(), **runs)
