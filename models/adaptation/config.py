@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from wrenchd.models.body_wall_tracker import BodyWallTrackerConfig
 from wrenchd.models.estimator.correction import CorrKernel
@@ -58,6 +58,16 @@ class AdaptationConfig(BaseModel):
         default_factory=BodyWallTrackerConfig,
         description="the body wall's stiffness tracking and the carry-over at an announced "
                     "set-up change")
+
+    @model_validator(mode="after")
+    def _reachable(self) -> AdaptationConfig:
+        """The first round needs ``min_train_samples`` in the recent ring and the reservoir
+        together: more than they hold would never come."""
+        held = self.recent_size + self.reservoir_size
+        if self.min_train_samples > held:
+            raise ValueError(f"min_train_samples ({self.min_train_samples}) exceeds what "
+                             f"recent_size + reservoir_size hold ({held}): no round would run")
+        return self
 
 
 @dataclass

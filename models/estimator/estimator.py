@@ -21,7 +21,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from wrenchd.models.errors import ConfigError, DataError
 from wrenchd.models.estimator import joint_streams
@@ -45,6 +45,13 @@ class EstimatorConfig(BaseModel):
                     "restarts the state (a splice of two streams, an encoder re-zeroed) "
                     "[rad; m on insertion]; None: never")
     wrench: WrenchMapConfig = Field(default_factory=WrenchMapConfig)
+
+    @field_validator("max_jump")
+    @classmethod
+    def _positive_jumps(cls, value: tuple[float, ...] | None) -> tuple[float, ...] | None:
+        if value is not None and not all(v > 0 for v in value):
+            raise ValueError(f"every joint's jump must be > 0 (None: never), got {value}")
+        return value
 
 
 @dataclass(frozen=True)

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 import torch
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 from torch import nn
 
 from wrenchd.models.errors import ConfigError, DataError
@@ -60,6 +60,15 @@ class FreeSpaceConfig(BaseModel):
     @classmethod
     def validate_groups(cls, value: tuple[tuple[int, ...], ...]) -> tuple[tuple[int, ...], ...]:
         return check_groups(value)
+
+    @model_validator(mode="after")
+    def _seal_groups(self) -> FreeSpaceConfig:
+        n = len(self.groups)
+        if len(set(self.seal_groups)) != len(self.seal_groups) or not all(
+                0 <= g < n for g in self.seal_groups):
+            raise ValueError(f"seal_groups must be distinct indices of the {n} groups "
+                             f"(0..{n - 1}), got {self.seal_groups}")
+        return self
 
 
 class JointGroupNet(nn.Module):

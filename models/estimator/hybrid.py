@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, ClassVar
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 from wrenchd.models.errors import ConfigError, DataError
 from wrenchd.models.estimator.coverage import Coverage, CoverageConfig
 from wrenchd.models.estimator.features import N_FEATURES, segments
@@ -79,6 +79,13 @@ class ResidualNetConfig(BaseModel):
     batch_size: int = Field(default=256, ge=1)
     weight_decay: float = Field(default=0.0, ge=0.0, description="Adam L2 penalty")
     seed: int = Field(default=0, description="initial weights and sample order")
+
+    @field_validator("hidden")
+    @classmethod
+    def _widths(cls, value: tuple[int, ...]) -> tuple[int, ...]:
+        if not all(w >= 1 for w in value):
+            raise ValueError(f"every layer needs at least one unit, got {value}")
+        return value
 
 
 class HybridConfig(BaseModel):

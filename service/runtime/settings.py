@@ -180,8 +180,18 @@ class SimulatorSettings(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     scenario: str = Field(default="trocar-contact", description="wrenchd.adapters.sim scenario")
-    seed: int = 0
-    rate_hz: float = Field(default=200.0, gt=0.0, le=5000.0)
+    seed: int = Field(default=0, description="seed of the simulated session")
+    rate_hz: float = Field(default=200.0, gt=0.0, le=5000.0,
+                           description="joint-state rate of the simulated PSM [Hz]")
+
+    @field_validator("scenario")
+    @classmethod
+    def _known(cls, value: str) -> str:
+        from wrenchd.adapters.sim.scenarios import SCENARIOS
+
+        if value not in SCENARIOS:
+            raise ValueError(f"unknown scenario {value!r}; choose one of {sorted(SCENARIOS)}")
+        return value
 
 
 class RingConfig(BaseModel):
