@@ -68,7 +68,8 @@ def detector_scores(t: np.ndarray, contact: np.ndarray, force_n: np.ndarray,
         changes_s: times of the session's set-up changes [s].
     Returns:
         JSON-ready: ``episodes``, ``found``, ``missed``, ``missed_over_N`` and their
-        ``missed_episodes``, ``delay_s`` and ``force_at_flag_N`` (median, p95, max),
+        ``missed_episodes``, ``delay_s`` and ``force_at_flag_N`` (median, p95, max), each
+        found episode's delay (``delay_each_s``, in order),
         ``false_alarms`` (``count``, ``per_min``, ``free_min``, ``after_change``).
     """
     contact = np.asarray(contact, dtype=bool)
@@ -101,6 +102,7 @@ def detector_scores(t: np.ndarray, contact: np.ndarray, force_n: np.ndarray,
         "found": len(delays), "missed": len(missed), "over_N": FOUND_OVER_N,
         "missed_over_N": sum(m["peak_N"] > FOUND_OVER_N for m in missed),
         "missed_episodes": missed, "delay_s": _stats(delays), "force_at_flag_N": _stats(forces),
+        "delay_each_s": delays,
         "false_alarms": {
             "count": len(alarms), "free_min": free_min, "at_s": alarms,
             "per_min": len(alarms) / free_min if free_min > 0 else None,
