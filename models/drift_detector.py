@@ -35,7 +35,8 @@ class DriftConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    method: Literal["page-hinkley", "adwin"] = "page-hinkley"
+    method: Literal["page-hinkley", "adwin"] = Field(default="page-hinkley",
+                                                     description="page-hinkley or adwin")
     threshold: float = Field(default=200.0, gt=0.0,
                              description="Page-Hinkley threshold [noise-floor units x samples]")
     delta: float = Field(default=0.5, ge=0.0,

@@ -17,7 +17,7 @@ class AdaptationConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    enabled: bool = True
+    enabled: bool = Field(default=True, description="fine-tune the correction net online")
     recent_size: int = Field(default=3000, ge=16, description="recent ring [samples]")
     reservoir_size: int = Field(default=6000, ge=0, description="older samples kept [samples]")
     recent_fraction: float = Field(default=0.6, ge=0.0, le=1.0,
@@ -27,7 +27,7 @@ class AdaptationConfig(BaseModel):
     min_train_samples: int = Field(default=600, ge=16,
                                    description="samples before the first round")
     round_steps: int = Field(default=40, ge=1, description="Adam steps per round")
-    batch_size: int = Field(default=128, ge=1)
+    batch_size: int = Field(default=128, ge=1, description="samples per Adam step")
     lr: float = Field(default=2e-3, gt=0.0, description="Adam learning rate")
     weight_decay: float = Field(default=0.01, ge=0.0, description="L2 penalty (paper's Corr)")
     min_improvement: float = Field(default=0.005, ge=0.0, lt=1.0,
@@ -53,7 +53,7 @@ class AdaptationConfig(BaseModel):
     drift_lead_s: float = Field(default=0.0, ge=0.0,
                                 description="how long before its detection a drift is taken "
                                             "to have begun [s]")
-    seed: int = 0
+    seed: int = Field(default=0, description="seed of the batches and of a fresh Corr's weights")
     body_wall: BodyWallTrackerConfig = Field(
         default_factory=BodyWallTrackerConfig,
         description="the body wall's stiffness tracking and the carry-over at an announced "

@@ -63,13 +63,18 @@ class KeysConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    preset: Literal["wrenchd", "ros2dds", "rmw_zenoh"] = "wrenchd"
-    measured_js: str | None = None                # None: the preset's
-    wrench: str | None = None                     # None: the preset's
-    events: str = "{prefix}/{arm}/wrenchd/events"
-    status: str = "{prefix}/{arm}/wrenchd/status"
-    alive: str = "{prefix}/{arm}/wrenchd/alive"
-    setup: str = "{prefix}/{arm}/setup"           # set-up changes in (robot side, like measured_js)
+    preset: Literal["wrenchd", "ros2dds", "rmw_zenoh"] = Field(
+        default="wrenchd", description="where the joint states come from and the wrench goes: "
+                                       "wrenchd, ros2dds or rmw_zenoh (KEY_PRESETS)")
+    measured_js: str | None = Field(default=None,
+                                    description="joint states in; unset: the preset's")
+    wrench: str | None = Field(default=None, description="the wrench out; unset: the preset's")
+    events: str = Field(default="{prefix}/{arm}/wrenchd/events", description="events out")
+    status: str = Field(default="{prefix}/{arm}/wrenchd/status", description="status out")
+    alive: str = Field(default="{prefix}/{arm}/wrenchd/alive",
+                       description="liveliness token of the arm")
+    setup: str = Field(default="{prefix}/{arm}/setup",
+                       description="set-up changes in (robot side, like measured_js)")
 
     @model_validator(mode="before")
     @classmethod
@@ -273,7 +278,8 @@ class ServiceSettings(BaseSettings):
 
     robot: Literal["simulated", "external"] = Field(
         default="simulated", description="simulated: start the simulated PSM beside the daemon")
-    prefix: str = Field(default="dvrk", pattern=r"^[A-Za-z0-9_\-]+(/[A-Za-z0-9_\-]+)*$")
+    prefix: str = Field(default="dvrk", pattern=r"^[A-Za-z0-9_\-]+(/[A-Za-z0-9_\-]+)*$",
+                        description="first part of every key: {prefix}/{arm}/...")
     arms: list[ArmConfig] = Field(default_factory=lambda: [ArmConfig()])
     zenoh: ZenohConfig = Field(default_factory=lambda: ZenohConfig(listen=[DEFAULT_LISTEN]))
     ring: RingConfig = Field(default_factory=RingConfig)
