@@ -51,7 +51,7 @@ together into a :class:`~wrenchd.service.studies.reproduction_results.Reproducti
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from typing import Callable
 
 import numpy as np
 import torch
