@@ -96,3 +96,20 @@ def test_a_message_decodes_with_the_definition_its_file_stores():
         ros2.deserialize(old[:40], ros2.ESTIMATE)
     with pytest.raises(DataError, match="cannot read the definition"):
         ros2.deserialize(new, ros2.ESTIMATE, "float64[ broken\n")
+
+
+def test_stamps_to_time_and_back():
+    stamp_ns = 1_700_000_000 * ros2.NS_PER_S + 123_456_789
+    assert ros2.split_ns(stamp_ns) == (1_700_000_000, 123_456_789)
+    header = ros2.header(stamp_ns, "psm_base")
+    assert (header.stamp.sec, header.stamp.nanosec, header.frame_id) == (
+        1_700_000_000, 123_456_789, "psm_base")
+    assert ros2.time_ns(header.stamp) == stamp_ns
+
+
+@pytest.mark.parametrize(("sec", "nanosec", "what"), [(-1, 0, "header.stamp.sec"),
+                                                      (0, ros2.NS_PER_S, "header.stamp.nanosec")])
+def test_a_time_out_of_range_is_refused(sec, nanosec, what):
+    bad = ros2.message_class(ros2.TIME)(sec=sec, nanosec=nanosec)
+    with pytest.raises(DataError, match=re.escape(what)):
+        ros2.time_ns(bad)
