@@ -111,6 +111,11 @@ class GateConfig(BaseModel):
         default=False,
         description="the joint score leaves out the joint with the peak score (one joint's "
                     "spike is the peak score's to judge)")
+    joint_cap_sigma: float | None = Field(
+        default=3.0, gt=0.0,
+        description="each joint adds at most this score to the joint score: a friction spike "
+                    "on one joint is the peak score's to judge, a weak contact loads several "
+                    "(docs/results.md); None: no cap")
     reversal_bins_s: tuple[float, ...] = Field(
         default=(0.05, 0.1, 0.2, 0.4),
         description="with velocities given, each joint's residual spread is learnt apart for "
@@ -136,6 +141,11 @@ class GateConfig(BaseModel):
         if len(self.min_std) != N_JOINTS or len(self.slow_velocity) != N_JOINTS:
             raise ValueError(f"min_std and slow_velocity need {N_JOINTS} values each, got "
                              f"{len(self.min_std)} and {len(self.slow_velocity)}")
+        if min(self.min_std) <= 0.0 or min(self.slow_velocity) < 0.0:
+            raise ValueError("min_std must be positive and slow_velocity not negative")
+        if self.train_sigma > self.learn_sigma:
+            raise ValueError(f"train_sigma ({self.train_sigma}) must not exceed learn_sigma "
+                             f"({self.learn_sigma}): a sample that trains teaches the scale")
         if self.exit_sigma > self.enter_sigma or self.joint_exit_sigma > self.joint_sigma:
             raise ValueError("an exit bound (exit_sigma, joint_exit_sigma) must not exceed its "
                              "enter bound (enter_sigma, joint_sigma)")
@@ -188,6 +198,8 @@ class FreeMotionGate:
 
     def __init__(self, config: GateConfig | None = None) -> None:
         self.config = config if config is not None else GateConfig()
+        cap = self.config.joint_cap_sigma
+        self._joint_cap_sq = None if cap is None else cap * cap
         self.scale = ResidualScale(self.config)
         self.reset()
 
@@ -285,8 +297,13 @@ class FreeMotionGate:
         zsq, steady = scale.squared_scores(r, t, velocity)
         peak = max(zsq)
         score = math.sqrt(peak)
-        joint = (math.sqrt((sum(zsq) - peak) / (N_JOINTS - 1)) if cfg.joint_without_peak
-                 else math.sqrt(sum(zsq) / N_JOINTS))
+        if cfg.joint_without_peak:
+            joint = math.sqrt((sum(zsq) - peak) / (N_JOINTS - 1))
+        elif self._joint_cap_sq is not None:
+            cap = self._joint_cap_sq
+            joint = math.sqrt(sum(z if z < cap else cap for z in zsq) / N_JOINTS)
+        else:
+            joint = math.sqrt(sum(zsq) / N_JOINTS)
         if not scale.calibrated:                      # learn the level first, call nothing
             scale.warm(r, steady, zsq)
             if scale.calibrated:

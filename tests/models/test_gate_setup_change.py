@@ -88,7 +88,7 @@ def test_a_re_learnt_scale_is_the_contact_level_not_one_sample():
     samples within the trim bound), on every joint, not on whatever the last sample was."""
     cfg = GateConfig(warmup_samples=1000, max_contact_s=20.0, setup_contact_s=0.0)
     r = 3.0 * noise(N, seed=3)                       # three times the floor on every joint
-    r[CHANGE:, 0] += 0.3
+    r[CHANGE:, 0] += 0.45                           # 7.5 x the noise: a clear, lasting step
     gate = FreeMotionGate(cfg)
     for i, x in enumerate(r):
         if gate.update(i, i / RATE, x).recalibrated:
