@@ -1,46 +1,25 @@
 """The daemon's MCAP log: one ROS 2 bag file per arm, flushed every second, rotated, never fatal.
 
-The files are ROS 2 MCAP (profile ``ros2``, CDR messages, ``ros2msg`` schemas:
-:mod:`wrenchd.adapters.ros2_msgs`), so ``ros2 bag info`` / ``ros2 bag play``, Foxglove and
-``rosbags`` open them. Topics:
+The log is what an arm received and what the daemon made of it, kept so that a session can be
+inspected, replayed and trained on afterwards. The files are ROS 2 MCAP (profile ``ros2``, CDR
+messages, ``ros2msg`` schemas: :mod:`wrenchd.adapters.ros2_msgs`), so ``ros2 bag info`` /
+``ros2 bag play``, Foxglove and ``rosbags`` open them. Topics (:data:`TOPIC_TYPES`; fields and
+units in ``docs/formats-and-keys.md``, "Daemon logs"):
 
-=====================  ===================================  ===================================
-``/psm/measured_js``   ``sensor_msgs/msg/JointState``       every accepted input, the session
-                                                            layout of
-                                                            :mod:`wrenchd.adapters.mcap_session`
-                                                            (a daemon log is a replayable
-                                                            session)
-``/wrenchd/estimate``  ``wrenchd_msgs/msg/Estimate``        per sample, float32: wrench,
-                                                            free-motion flag, gate score,
-                                                            model version, external joint
-                                                            torques (residual; the predicted
-                                                            ones are effort - external)
-``/wrenchd/events``    ``wrenchd_msgs/msg/Event``           errors, gaps, contacts, drifts,
-                                                            rounds, model swaps, log problems:
-                                                            stamp, kind and the event's JSON
-``/wrenchd/status``    ``wrenchd_msgs/msg/Status``          the status snapshot (JSON), once a
-                                                            second
-=====================  ===================================  ===================================
+* ``/psm/measured_js`` (``sensor_msgs/msg/JointState``): every accepted input, in the session
+  layout of :mod:`wrenchd.adapters.mcap_session`, so a daemon log is a replayable session;
+* ``/wrenchd/estimate`` (``wrenchd_msgs/msg/Estimate``): per sample, float32, the wrench
+  [N, N m], free-motion flag, gate score, model version and external joint torques;
+* ``/wrenchd/events`` (``wrenchd_msgs/msg/Event``): every event, as stamp, kind and JSON;
+* ``/wrenchd/status`` (``wrenchd_msgs/msg/Status``): the status snapshot (JSON), once a second.
 
-Metadata ``wrenchd.session`` (the same record as simulated sessions) says where the data
-came from and with which configuration.
+Metadata ``wrenchd.session`` (the same record as simulated sessions) says where the data came
+from and with which configuration.
 
-What the daemon hands over (:data:`Payload`) is CDR bytes, JSON text (a joint state as a JSON
-arm received it, an event or a status) or the name of a record maker in :data:`FORMATTERS`
-with its arguments; :meth:`McapLog.write` turns JSON into the topic's ROS 2 message.
-
-Crash safety: at least every ``flush_interval_s`` the open chunk is closed and written and the
-file flushed (optionally fsync'ed), so ``kill -9`` loses at most about that much; the session
-reader recovers every complete chunk. Rotation starts a new file after ``rotate_mb`` or
-``rotate_s``. A write that fails (disk full, directory gone) never raises into the
-estimator: the log drops the file, counts what it could not write, reports the problem through
-:attr:`McapLog.problem` (cleared when a fresh file is open), and retries a fresh file every
-``retry_s``.
-
-Disk budget: with ``max_total_bytes`` set, the daemon's log files in the directory are kept
-under it by removing the oldest closed ones (never an open one), after each rotation and every
-``budget_check_s`` (:mod:`wrenchd.adapters.log_budget`; the daemon's log writer process runs
-it). What was removed waits in :attr:`McapLog.removed` for the daemon to report it.
+What the daemon hands over (:data:`Payload`) is CDR bytes, JSON text or the name of a record
+maker in :data:`FORMATTERS` with its arguments, so only plain values cross to the log writer
+process. :class:`McapLog` writes the files; it flushes, rotates, survives a failing disk and
+keeps a disk budget (:class:`LogConfig`; times in s, sizes in MB or bytes).
 """
 
 from __future__ import annotations
@@ -206,7 +185,23 @@ class LogConfig(BaseModel):
 
 
 class McapLog:
-    """One arm's rotating, flushed MCAP log (see the module docstring).
+    """One arm's rotating, flushed MCAP log.
+
+    :meth:`write` turns JSON text into the topic's ROS 2 message (a joint state as a JSON arm
+    received it, an event or a status) and writes CDR bytes as they come.
+
+    Crash safety: at least every ``flush_interval_s`` the open chunk is closed and written and
+    the file flushed (optionally fsync'ed), so ``kill -9`` loses at most about that much; the
+    session reader recovers every complete chunk. Rotation starts a new file after
+    ``rotate_mb`` or ``rotate_s``. A write that fails (disk full, directory gone) never raises
+    into the estimator: the log drops the file, counts what it could not write, reports the
+    problem through :attr:`problem` (cleared when a fresh file is open), and retries a fresh
+    file every ``retry_s``.
+
+    Disk budget: with ``max_total_bytes`` set, the daemon's log files in the directory are kept
+    under it by removing the oldest closed ones (never an open one), after each rotation and
+    every ``budget_check_s`` (:mod:`wrenchd.adapters.log_budget`; the daemon's log writer
+    process runs it). What was removed waits in :attr:`removed` for the daemon to report it.
 
     Args:
         arm: arm name (file names and metadata).
