@@ -1,38 +1,22 @@
 """Patient variation: each simulated session draws its own seal, body wall, incision and
 insufflation from documented ranges.
 
-A scenario run without ranges keeps the effects' defaults (the *fixed patient*: every session
-is the same patient, as the committed reports and the tests assume). With
-:class:`PatientRanges`, :func:`draw_patient` draws one patient per session from the session's
-own random stream, so two sessions with different seeds never share a draw, and the draw is
-recorded in the session's metadata (``metadata["patient"]``).
+A model trained and tested on one set of trocar parameters flatters the estimator; drawing a
+patient per session lets a study test on patients it never trained on. A scenario run without
+ranges keeps the effects' defaults (the *fixed patient*: every session is the same patient, as
+the committed reports and the tests assume). With :class:`PatientRanges`,
+:func:`draw_patient` draws one patient per session from the session's own random stream, so
+two sessions with different seeds never share a draw, and the draw is recorded in the
+session's metadata (``metadata["patient"]``); :func:`apply_patient` puts it into a model's
+effect specs.
 
-Ranges and where they come from (uniform draws, independent per parameter):
-
-====================  ==================  ==========================================================
-parameter             range               source
-====================  ==================  ==========================================================
-seal sliding level    0.5 - 2.0 N         van den Dobbelsteen, Schooleman, Dankelman, "Friction
-(insertion ``fc``)                        dynamics of trocars", Surg Endosc 21:1338 (2007): sliding
-                                          friction 0.25 - 3.0 N over six trocars; the middle of it
-seal breakaway        0.2 - 1.2 N         the same study: fluctuations of 0.2 - 2.5 N at starts and
-(``fs_excess``)                           reversals; the lower half (the LuGre spike adds to fc)
-insufflation          8 - 15 mmHg         EAES guideline on the pneumoperitoneum (Neudecker et al.,
-pressure                                  Surg Endosc 16:1121, 2002): the lowest pressure that gives
-                                          exposure, 12 - 15 mmHg the usual working range; 8 mmHg
-                                          for low-pressure practice
-wall stiffness k0     50 - 200 N/m        assumption: a factor 2 either side of the effect's
-                                          default (100 N/m); no in-vivo lateral port stiffness found
-wall stiffening       20 - 60 N/m/mmHg    assumption: the default (40) +-50 %; in-vivo insufflation
-                                          does stiffen the wall (Song, Alijani, Frank, Hanna,
-                                          Cuschieri, Surg Endosc 20:987, 2006), the slope is ours
-wall damping          2.5 - 10 N s/m      assumption: the default (5) halved to doubled
-incision depth        2 - 5 cm            assumption: where the shaft meets the wall along the
-                                          shaft, an abdominal wall a few cm thick with the RCM set
-                                          inside it
-incision offset       +-5 mm per          assumption: how far the port sits sideways from the RCM
-                      lateral axis        (the default is 3 mm, -2 mm)
-====================  ==================  ==========================================================
+Ranges (uniform, independent per parameter; the table and each range's source are in
+:class:`PatientRanges`): seal sliding level 0.5 - 2.0 N and breakaway 0.2 - 1.2 N (van den
+Dobbelsteen, Schooleman, Dankelman, "Friction dynamics of trocars", Surg Endosc 21:1338,
+2007), insufflation 8 - 15 mmHg (EAES pneumoperitoneum guideline, Neudecker et al., Surg Endosc
+16:1121, 2002), body wall stiffness 50 - 200 N/m, stiffening 20 - 60 N/m per mmHg and damping
+2.5 - 10 N s/m, incision 2 - 5 cm deep and up to 5 mm to the side (assumptions around the
+effects' defaults).
 
 The seal's roll parameters move with its insertion ones (each roll value scaled by the same
 factor as its insertion value), so the shaft radius that relates them stays the default's.
@@ -63,7 +47,39 @@ def _span(low: float, high: float, what: str):
 
 
 class PatientRanges(BaseModel):
-    """Uniform ranges a patient's parameters are drawn from (sources in the module docstring)."""
+    """Uniform ranges a patient's parameters are drawn from.
+
+    Where each range comes from (draws independent per parameter):
+
+    ====================  ================  ========================================================
+    parameter             range             source
+    ====================  ================  ========================================================
+    seal sliding level    0.5 - 2.0 N       van den Dobbelsteen, Schooleman, Dankelman, "Friction
+    (insertion ``fc``)                      dynamics of trocars", Surg Endosc 21:1338 (2007):
+                                            sliding friction 0.25 - 3.0 N over six trocars; the
+                                            middle of it
+    seal breakaway        0.2 - 1.2 N       the same study: fluctuations of 0.2 - 2.5 N at starts
+    (``fs_excess``)                         and reversals; the lower half (the LuGre spike adds to
+                                            fc)
+    insufflation          8 - 15 mmHg       EAES guideline on the pneumoperitoneum (Neudecker et
+    pressure                                al., Surg Endosc 16:1121, 2002): the lowest pressure
+                                            that gives exposure, 12 - 15 mmHg the usual working
+                                            range; 8 mmHg for low-pressure practice
+    wall stiffness k0     50 - 200 N/m      assumption: a factor 2 either side of the effect's
+                                            default (100 N/m); no in-vivo lateral port stiffness
+                                            found
+    wall stiffening       20 - 60 N/m/mmHg  assumption: the default (40) +-50 %; in-vivo
+                                            insufflation does stiffen the wall (Song, Alijani,
+                                            Frank, Hanna, Cuschieri, Surg Endosc 20:987, 2006),
+                                            the slope is ours
+    wall damping          2.5 - 10 N s/m    assumption: the default (5) halved to doubled
+    incision depth        2 - 5 cm          assumption: where the shaft meets the wall along the
+                                            shaft, an abdominal wall a few cm thick with the RCM
+                                            set inside it
+    incision offset       +-5 mm per        assumption: how far the port sits sideways from the
+                          lateral axis      RCM (the default is 3 mm, -2 mm)
+    ====================  ================  ========================================================
+    """
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
