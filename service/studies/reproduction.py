@@ -1,6 +1,8 @@
 """The paper's three tables regenerated on the simulator (Wu, Yilmaz, Kazanzides, Tumerdem).
 
-Configurations, as in the paper:
+The paper (arXiv 2012.01479) compares six ways to train the two-step estimator on trocar data;
+this study runs the same comparison where the true tip wrench is known, to check its claims:
+training time, no-contact RMSE per axis and contact RMSE against training length (s of data).
 
 ==========  =====================================================================
 Troc        the step-1 structure trained directly on trocar data (per length)
@@ -11,42 +13,15 @@ Seal+Corr   Seal + a correction net trained on trocar data (per length)
 Seal+Xfer   Seal's LSTMs frozen + new layers trained on trocar data (per length)
 ==========  =====================================================================
 
-Data: the trocar training set of length ``L`` is ``L / segment_s`` simulated ``trocar``
-sessions of ``segment_s`` seconds (seeds ``seed + k``; the sets are nested, a longer set
-holds the shorter ones). Tests: ``no_contact_trials`` fresh ``trocar`` sessions, and
-``contact_trials`` fresh ``trocar-contact`` sessions, all with seeds no training set uses.
-RMSEs compare the estimated tip wrench with the simulator's true tip wrench (zero without
-contact) over every sample of a trial, per axis, averaged over trials.
-
-Oracle floor: the estimate made with the simulator's own noise-free internal torque
-(``truth.internal_torque``), so that what is left is the effort noise mapped through the
-damped ``J^-T``. Every RMSE is also given as a ratio to this floor.
-
-The paper-scale run (:data:`PAPER`, ``wrenchd reproduce --paper``) adds, each switched by a
-field of :class:`~wrenchd.service.studies.reproduction_config.ReproductionConfig`:
-
-* patient variation: every session (training, held-out validation, test) draws its own seal,
-  body wall, incision and pressure (:mod:`wrenchd.adapters.sim.patients`); the session seeds of
-  the roles are disjoint, so test patients are unseen, and the run checks that no test draw
-  equals a training draw (``patient_draws_disjoint``);
-* the handle's torsional stiffness (``handle_nm_per_rad``);
-* step 1 (Base, Seal) trained here per training seed on ``step1.duration_s`` of free motion,
-  early-stopped on held-out sessions (:func:`~wrenchd.service.studies.training.
-  fit_step1_held_out`), and tested in domain on fresh free-motion sessions of unseen patients;
-* Troc and Xfer early-stopped on held-out trocar sessions (``validation_sessions``);
-* several training seeds per cell; every table cell is the mean over seeds and trials with a
-  95 % interval (:func:`~wrenchd.service.studies.reproduction_scoring.mean_interval`);
-* RMSE over every sample, RMSE over contact samples only and the peak error, each against the
-  simulator's true tip wrench and against the force sensor's noisy channel;
-* an output filter (``output_filter_hz``: a causal second-order Butterworth low-pass on every
-  wrench estimate) and beside the raw oracle floor the oracle through the same filter.
-
-The run is four steps, each its own module returning typed records: the sessions
-(:mod:`~wrenchd.service.studies.reproduction_sets`), the training
+RMSEs [N, N m] compare the estimate with the simulator's true tip wrench and are also given
+as a ratio to an oracle floor (:func:`run_reproduction` says how the data and the floor are
+made). :data:`PAPER` (``wrenchd reproduce --paper``) adds patient variation, step 1 trained
+here, several seeds with 95 % intervals and an output filter (``docs/estimator-and-training.md``,
+"The paper-scale run"). The run is four steps, each its own module returning typed records:
+the sessions (:mod:`~wrenchd.service.studies.reproduction_sets`), the training
 (:mod:`~wrenchd.service.studies.reproduction_training`), the scoring
 (:mod:`~wrenchd.service.studies.reproduction_scoring`) and the table cells
-(:mod:`~wrenchd.service.studies.reproduction_summary`); :func:`run_reproduction` puts them
-together into a :class:`~wrenchd.service.studies.reproduction_results.ReproductionResult`.
+(:mod:`~wrenchd.service.studies.reproduction_summary`).
 """
 
 from __future__ import annotations
@@ -148,6 +123,38 @@ def run_reproduction(config: ReproductionConfig, base: FreeSpaceModel | None = N
                      log: Callable[[str], None] = print,
                      device: str | None = "cpu") -> ReproductionResult:
     """Train the per-length configurations, evaluate all six, return the results.
+
+    Data: the trocar training set of length ``L`` is ``L / segment_s`` simulated ``trocar``
+    sessions of ``segment_s`` seconds (seeds ``seed + k``; the sets are nested, a longer set
+    holds the shorter ones). Tests: ``no_contact_trials`` fresh ``trocar`` sessions, and
+    ``contact_trials`` fresh ``trocar-contact`` sessions, all with seeds no training set uses.
+    RMSEs compare the estimated tip wrench with the simulator's true tip wrench (zero without
+    contact) over every sample of a trial, per axis, averaged over trials.
+
+    Oracle floor: the estimate made with the simulator's own noise-free internal torque
+    (``truth.internal_torque``), so that what is left is the effort noise mapped through the
+    damped ``J^-T``. Every RMSE is also given as a ratio to this floor.
+
+    The paper-scale run (:data:`PAPER`) adds, each switched by a field of
+    :class:`~wrenchd.service.studies.reproduction_config.ReproductionConfig`:
+
+    * patient variation: every session (training, held-out validation, test) draws its own
+      seal, body wall, incision and pressure (:mod:`wrenchd.adapters.sim.patients`); the
+      session seeds of the roles are disjoint, so test patients are unseen, and the run checks
+      that no test draw equals a training draw (``patient_draws_disjoint``);
+    * the handle's torsional stiffness (``handle_nm_per_rad``);
+    * step 1 (Base, Seal) trained here per training seed on ``step1.duration_s`` of free
+      motion, early-stopped on held-out sessions (:func:`~wrenchd.service.studies.training.
+      fit_step1_held_out`), and tested in domain on fresh free-motion sessions of unseen
+      patients;
+    * Troc and Xfer early-stopped on held-out trocar sessions (``validation_sessions``);
+    * several training seeds per cell; every table cell is the mean over seeds and trials with
+      a 95 % interval (:func:`~wrenchd.service.studies.reproduction_scoring.mean_interval`);
+    * RMSE over every sample, RMSE over contact samples only and the peak error, each against
+      the simulator's true tip wrench and against the force sensor's noisy channel;
+    * an output filter (``output_filter_hz``: a causal second-order Butterworth low-pass on
+      every wrench estimate) and beside the raw oracle floor the oracle through the same
+      filter.
 
     ``base``, ``seal``: the step-1 models when ``config.step1`` is None (else trained here,
     per training seed). ``device``: where the recurrent networks train (None: CUDA when
