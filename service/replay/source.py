@@ -1,31 +1,21 @@
 """Where a replay's joint states come from: recordings, simulator specs and their combinations.
 
-``SESSION`` strings accepted by ``wrenchd replay``, ``compare``, ``recovery --session`` and
-``inspect``:
+Every command that reads a session (``wrenchd replay``, ``compare``, ``recovery --session``,
+``inspect``) names it with one ``SESSION`` string, so a recording, a simulation and a mix of
+the two are replayed, scored and compared the same way. The forms (:func:`load_session` lists
+them; ``docs/replay-and-policies.md``, "Sessions", says what each one's truth holds):
 
-====================================  =======================================================
-``path/to/file.mcap``                 a simulated session (with truth) or a daemon log (its
-                                      ``/psm/measured_js``; no truth), ROS 2 (CDR) or the
-                                      former JSON format; a ROS 2 bag another recorder wrote
-``path/to/rosbag2_dir/``              a rosbag2 directory (MCAP or sqlite3 storage, also a
-                                      bare ``.db3``): ``sensor_msgs/msg/JointState`` on
-                                      ``/PSM1/measured_js`` (:mod:`wrenchd.adapters.recordings`);
-                                      no truth
-``path/to/file.csv``                  a real recording, WPI (21 columns, 200 Hz) or the
-                                      paper's 19-column layout (:mod:`wrenchd.adapters.csv_psm`);
-                                      no truth
-``sim:SCENARIO:DURATION[:SEED]``      simulate now, e.g. ``sim:insufflation-change:300:3``
-                                      (duration in s, seed default 0); truth included
-``concat:PATH[*N][,PATH[*N]...]``     recordings (any of the files above) played one after
-                                      another, each ``N`` times (default 1), time continuous;
-                                      each change of recording is a set-up change
-                                      (announced with ``--announce``); truth: free motion
-                                      unless a recording has its own
-                                      (:mod:`wrenchd.models.recorded`)
-``inject:SEED:SESSION``               ``SESSION`` (any form here) with a simulated trocar and
-                                      tip contacts drawn with ``SEED`` added to its efforts,
-                                      truth included (:mod:`wrenchd.adapters.sim.injection`)
-====================================  =======================================================
+* ``path/to/file.mcap``: a simulated session (with truth), a daemon log or another
+  recorder's ROS 2 bag;
+* ``path/to/rosbag2_dir/`` or a bare ``.db3``: a rosbag2 directory
+  (:mod:`wrenchd.adapters.recordings`);
+* ``path/to/file.csv``: a WPI (21 columns, 200 Hz) or paper (19 columns) recording
+  (:mod:`wrenchd.adapters.csv_psm`);
+* ``sim:SCENARIO:DURATION[:SEED]``: simulated now (duration in s, seed default 0);
+* ``concat:PATH[*N][,PATH[*N]...]``: recordings played one after another, each ``N`` times,
+  time continuous, each change of recording a set-up change (:mod:`wrenchd.models.recorded`);
+* ``inject:SEED:SESSION``: a session with a simulated trocar and tip contacts added to its
+  efforts (:mod:`wrenchd.adapters.sim.injection`).
 
 A ``concat:`` spec runs to the end of its argument: its commas separate recordings, so
 where a command takes several sessions (``compare --sessions``) give the sessions after it
@@ -167,7 +157,34 @@ def load_recording(path: str) -> Session:
 
 
 def load_session(spec: str) -> Session:
-    """The session named by ``spec`` (see the module docstring).
+    """The session named by ``spec``.
+
+    ``SESSION`` strings accepted by ``wrenchd replay``, ``compare``, ``recovery --session`` and
+    ``inspect``:
+
+    =================================  =======================================================
+    ``path/to/file.mcap``              a simulated session (with truth) or a daemon log (its
+                                       ``/psm/measured_js``; no truth), ROS 2 (CDR) or the
+                                       former JSON format; a ROS 2 bag another recorder wrote
+    ``path/to/rosbag2_dir/``           a rosbag2 directory (MCAP or sqlite3 storage, also a
+                                       bare ``.db3``): ``sensor_msgs/msg/JointState`` on
+                                       ``/PSM1/measured_js`` (:mod:`wrenchd.adapters.recordings`);
+                                       no truth
+    ``path/to/file.csv``               a real recording, WPI (21 columns, 200 Hz) or the
+                                       paper's 19-column layout (:mod:`wrenchd.adapters.csv_psm`);
+                                       no truth
+    ``sim:SCENARIO:DURATION[:SEED]``   simulate now, e.g. ``sim:insufflation-change:300:3``
+                                       (duration in s, seed default 0); truth included
+    ``concat:PATH[*N][,PATH[*N]...]``  recordings (any of the files above) played one after
+                                       another, each ``N`` times (default 1), time continuous;
+                                       each change of recording is a set-up change
+                                       (announced with ``--announce``); truth: free motion
+                                       unless a recording has its own
+                                       (:mod:`wrenchd.models.recorded`)
+    ``inject:SEED:SESSION``            ``SESSION`` (any form here) with a simulated trocar and
+                                       tip contacts drawn with ``SEED`` added to its efforts,
+                                       truth included (:mod:`wrenchd.adapters.sim.injection`)
+    =================================  =======================================================
 
     Raises:
         ConfigError: a malformed spec, a missing file or an unknown file type.
