@@ -1,34 +1,24 @@
 """ROS 2 over zenoh as ``rmw_zenoh`` puts it on the wire: key expressions, liveliness tokens,
 publisher GIDs and the attachment of every published sample (pure functions, no session).
 
-Source: ``docs/design.md`` of the ros2/rmw_zenoh repository, read at commit
-99a6a2bd10b949052f4f12c5854825dc005e95a5 (the snapshot does not record its branch; its text is
-the zenoh 1.x design of the Jazzy-era releases with the key-less attachment of rmw_zenoh
-PR #601, which the humble branch took in its 0.1.2 release of 2025-06-19; the rolling
-branch's design.md of October 2024 still lacked these sections), sections "Topic and Service
-name mapping to Zenoh key expressions", "Graph Cache" and "Publishers". What the document
-leaves to the code was read in the same repository's ``rmw_zenoh_cpp/src/detail``:
-``liveliness_utils.cpp`` (a GID is the XXH3-128 of the entity's token, low half first,
-computed here with the ``xxhash`` package; the QoS part of a token names only what differs
-from the default QoS), ``qos.cpp`` (that default: reliable, volatile, keep-last 42, infinite
-deadline, lifespan and lease, automatic liveliness) and ``rmw_publisher_data.cpp`` (sequence
-numbers start at 1; the source timestamp is the system time at publication; no zenoh encoding
-is set).
+The daemon talks to a dVRK running rmw_zenoh as a ROS 2 node would (a node, a subscription
+and a publisher that ROS tools see in their graph); these functions build what that takes.
 
-* **Topic key**: ``<domain_id>/<topic without its leading slash>/<DDS type name>/<type hash>``,
-  e.g. ``0/PSM1/measured_js/sensor_msgs::msg::dds_::JointState_/RIHS01_a13ee3a3...``. The
-  DDS type name of ``pkg/msg/Type`` is ``pkg::msg::dds_::Type_``; the type hash is REP-2011's
-  RIHS01 (SHA-256 of the type description), computed by ``rosbags`` from its ROS 2 Jazzy
-  definitions.
-* **Liveliness tokens** (``@ros2_lv`` is a verbatim chunk: ``**`` does not match it):
-  node ``@ros2_lv/<domain>/<zid>/<node_id>/<node_id>/NN/<enclave>/<namespace>/<node>``;
-  publisher (``MP``) or subscription (``MS``)
-  ``@ros2_lv/<domain>/<zid>/<node_id>/<entity_id>/<kind>/<enclave>/<namespace>/<node>/
-  <topic>/<DDS type name>/<type hash>/<qos>``, where ``/`` in the enclave, namespace and topic
-  becomes ``%`` (an unset enclave or the root namespace is ``%``).
-* **Attachment** (33 bytes): sequence number (int64, little-endian), source timestamp [ns
-  since the UNIX epoch] (int64, little-endian), the GID's length (one byte, 16) and the
-  publisher's GID (16 bytes).
+Source: ``docs/design.md`` of the ros2/rmw_zenoh repository (the zenoh 1.x design, with the
+key-less attachment), sections "Topic and Service name mapping to Zenoh key expressions",
+"Graph Cache" and "Publishers". What the document leaves to the code comes from the same
+repository's ``rmw_zenoh_cpp/src/detail``: ``liveliness_utils.cpp`` (GIDs, the QoS part of a
+token), ``qos.cpp`` (the default QoS) and ``rmw_publisher_data.cpp`` (sequence numbers, the
+source timestamp, no zenoh encoding). Worked examples: ``docs/formats-and-keys.md``, "ROS 2
+over rmw_zenoh".
+
+* **Topic key** (:func:`topic_key`): ``<domain_id>/<topic without its leading slash>/<DDS
+  type name>/<type hash>``; the type hash is REP-2011's RIHS01 (:func:`type_hash`).
+* **Liveliness tokens** (:func:`node_token`, :func:`endpoint_token`): under ``@ros2_lv``, a
+  verbatim chunk (``**`` does not match it), with ``/`` in names written as ``%``.
+* **GID** (:func:`gid_of`): 16 bytes, the XXH3-128 of the entity's liveliness token.
+* **Attachment** (:func:`encode_attachment`, :class:`Stamper`; 33 bytes, little-endian):
+  sequence number, source timestamp [ns since the UNIX epoch], the GID's length and the GID.
 """
 
 from __future__ import annotations
@@ -68,7 +58,11 @@ _DEFAULT_DEPTH = 42
 @dataclass(frozen=True)
 class Qos:
     """The QoS a token advertises (zenoh itself has no incompatible QoS). The default is
-    ``rclcpp::QoS(10)``'s: reliable, volatile, keep the last 10."""
+    ``rclcpp::QoS(10)``'s: reliable, volatile, keep the last 10.
+
+    The token names only what differs from rmw_zenoh's default QoS (``qos.cpp``): reliable,
+    volatile, keep the last 42, infinite deadline, lifespan and lease, automatic liveliness.
+    """
 
     reliable: bool = True
     transient_local: bool = False
@@ -125,14 +119,19 @@ def type_hash(typename: str) -> str:
 
 
 def topic_key(domain_id: int, topic: str, typename: str) -> str:
-    """The key expression of ``topic`` (``/PSM1/measured_js``) carrying ``typename``."""
+    """The key expression of ``topic`` (``/PSM1/measured_js``) carrying ``typename``:
+    ``<domain_id>/<topic without its leading slash>/<DDS type name>/<type hash>``, e.g.
+    ``0/PSM1/measured_js/sensor_msgs::msg::dds_::JointState_/RIHS01_a13ee3a3...``."""
     return (f"{int(domain_id)}/{check_topic(topic)[1:]}/{dds_type_name(typename)}/"
             f"{type_hash(typename)}")
 
 
 def node_token(domain_id: int, zid: str, node_id: int, node: str, namespace: str = "/",
                enclave: str = "/") -> str:
-    """The liveliness token of a node."""
+    """The liveliness token of a node:
+    ``@ros2_lv/<domain>/<zid>/<node_id>/<node_id>/NN/<enclave>/<namespace>/<node>``, where
+    ``/`` in the enclave and namespace becomes ``%`` (an unset enclave or the root namespace
+    is ``%``)."""
     check_node(node, namespace)
     return (f"{ADMIN_SPACE}/{int(domain_id)}/{zid}/{node_id}/{node_id}/{NODE}/"
             f"{mangle(enclave)}/{mangle(namespace)}/{node}")
@@ -141,7 +140,11 @@ def node_token(domain_id: int, zid: str, node_id: int, node: str, namespace: str
 def endpoint_token(kind: str, domain_id: int, zid: str, node_id: int, entity_id: int,
                    node: str, topic: str, typename: str, namespace: str = "/",
                    enclave: str = "/", qos: Qos = Qos()) -> str:
-    """The liveliness token of a publisher (``MP``) or subscription (``MS``) of ``node``."""
+    """The liveliness token of a publisher (``MP``) or subscription (``MS``) of ``node``:
+    ``@ros2_lv/<domain>/<zid>/<node_id>/<entity_id>/<kind>/<enclave>/<namespace>/<node>/
+    <topic>/<DDS type name>/<type hash>/<qos>``, where ``/`` in the enclave, namespace and
+    topic becomes ``%`` (an unset enclave or the root namespace is ``%``) and ``<qos>`` is
+    :meth:`Qos.key`."""
     if kind not in (PUBLISHER, SUBSCRIPTION):
         raise ValueError(f"kind must be {PUBLISHER!r} or {SUBSCRIPTION!r}, got {kind!r}")
     check_node(node, namespace)
@@ -152,7 +155,8 @@ def endpoint_token(kind: str, domain_id: int, zid: str, node_id: int, entity_id:
 
 def gid_of(token: str) -> bytes:
     """An entity's 16-byte GID: the XXH3-128 of its liveliness token, the low 64 bits first,
-    each half little-endian (how rmw_zenoh copies the hash into the GID)."""
+    each half little-endian (how rmw_zenoh's ``liveliness_utils.cpp`` copies the hash into
+    the GID), computed with the ``xxhash`` package."""
     return xxhash.xxh3_128_intdigest(token.encode()).to_bytes(GID_SIZE, "little")
 
 
@@ -163,7 +167,9 @@ class Attachment(NamedTuple):
 
 
 def encode_attachment(sequence_number: int, source_timestamp_ns: int, gid: bytes) -> bytes:
-    """The 33 attachment bytes of one published sample."""
+    """The 33 attachment bytes of one published sample: sequence number (int64), source
+    timestamp [ns since the UNIX epoch] (int64), the GID's length (one byte, 16) and the GID
+    (16 bytes), little-endian."""
     if len(gid) != GID_SIZE:
         raise ValueError(f"a GID has {GID_SIZE} bytes, got {len(gid)}")
     return _ATTACHMENT.pack(sequence_number, source_timestamp_ns, GID_SIZE, bytes(gid))
@@ -199,7 +205,8 @@ def endpoint(kind: str, domain_id: int, zid: str, node_id: int, entity_id: int, 
 
 class Stamper:
     """The attachments of one publisher's samples: sequence numbers from 1, each sample stamped
-    with the system time at publication."""
+    with the system time at publication (as rmw_zenoh's ``rmw_publisher_data.cpp`` does; it
+    sets no zenoh encoding)."""
 
     def __init__(self, gid: bytes) -> None:
         if len(gid) != GID_SIZE:
