@@ -14,18 +14,12 @@ server on ``host`` (loopback by default) and advertises, per arm (``{arm}`` is i
   status queryable answers), every status interval;
 * ``/{arm}/wrenchd/events``, ``foxglove.Log`` (protobuf): every event, errors at level ERROR.
 
-The server speaks the subprotocol ``foxglove.sdk.v1`` (the Foxglove WebSocket protocol v1
-under its new name); clients that offer only ``foxglove.websocket.v1`` are refused by the SDK.
-
-The view never holds up estimation: the SDK's log calls only queue the message for each
-subscribed client (a slow client loses its oldest messages, never blocks the caller);
-wrenches, torques and gate are decimated to ``rate_hz`` by their sample stamps; nothing is
-encoded for a channel no client subscribes to; and any failure of the view is counted and said
-once on stderr, never raised into the estimation thread.
-
-The SDK (``foxglove-sdk``, import name ``foxglove``) is imported only when a view is started,
-so the daemon runs without it when no port is given. ``deploy/foxglove/wrenchd-layout.json``
-is a Foxglove layout of these topics for the arm ``PSM1``.
+The view lets a person watch an arm's estimate as it is made, plotted in Foxglove; it never
+holds up estimation (:class:`ArmLiveView` says how). The SDK
+(``foxglove-sdk``, import name ``foxglove``) is imported only when a view is started, so the
+daemon runs without it when no port is given. ``deploy/foxglove/wrenchd-layout.json`` is a
+Foxglove layout of these topics for the arm ``PSM1`` (set-up: ``docs/deployment.md``, "Live
+view in Foxglove").
 """
 
 from __future__ import annotations
@@ -109,7 +103,12 @@ def _stamp(stamp_ns: int) -> dict[str, int]:
 
 
 class LiveView:
-    """One Foxglove WebSocket server and its channels (one :class:`ArmLiveView` per arm)."""
+    """One Foxglove WebSocket server and its channels (one :class:`ArmLiveView` per arm).
+
+    The server speaks the subprotocol ``foxglove.sdk.v1`` (the Foxglove WebSocket protocol v1
+    under its new name); clients that offer only ``foxglove.websocket.v1`` are refused by the
+    SDK.
+    """
 
     def __init__(self, config: FoxgloveConfig, name: str = "wrenchd") -> None:
         if config.port is None:
@@ -162,6 +161,12 @@ def open_live_view(config: FoxgloveConfig) -> LiveView | None:
 
 class ArmLiveView:
     """One arm's channels; its methods are called on the estimation thread and never raise.
+
+    The view never holds up estimation: the SDK's log calls only queue the message for each
+    subscribed client (a slow client loses its oldest messages, never blocks the caller);
+    wrenches, torques and gate are decimated to ``rate_hz`` by their sample stamps; nothing is
+    encoded for a channel no client subscribes to; and any failure of the view is counted and
+    said once on stderr, never raised into the estimation thread.
 
     Args:
         view: the server.
