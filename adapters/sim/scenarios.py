@@ -1,31 +1,26 @@
-"""Named simulation scenarios: a workspace, a physics model, contacts and drifts.
+"""Named simulation scenarios: a workspace, a physics model, contacts and drifts, so that every
+study, test and ``sim:`` session names the conditions it runs under by one word.
 
-=====================  ===================================================================
-``free-space``         rigid body + free-space friction (Coulomb, viscous, Stribeck, wrist
-                       cable coupling); wide workspace; no seal, no contact.
-``free-space-seal``    the same with the instrument through a cannula seal.
-``trocar``             seal + body wall at the port (insufflated at 12 mmHg), the smaller
-                       workspace of work inside a phantom, slower motion, no contact.
-``trocar-contact``     ``trocar`` plus contact episodes: the tip grasps a compliant handle on
-                       a 6-axis force sensor (sensor channel recorded).
-``insufflation-change`` ``trocar`` with the pressure stepping from 12 to 20 mmHg at 40 % of
-                       the session, plus occasional contacts (sensor recorded).
-``instrument-drift``   ``trocar`` with seal friction ramping up 60 % and wrist friction up
-                       80 % over the session (wear), plus occasional contacts.
-``insufflation-high``  ``insufflation-change`` at 20 mmHg from the start: with the same seed,
-                       the same motion, contacts and noise, so the level a net reaches that
-                       learnt the new pressure from the start (``wrenchd recovery
-                       --settled``'s reference).
-=====================  ===================================================================
+=======================  ================================================================
+``free-space``           rigid body + free-space friction (Coulomb, viscous, Stribeck,
+                         wrist cable coupling); wide workspace; no seal, no contact.
+``free-space-seal``      the same with the instrument through a cannula seal.
+``trocar``               seal + body wall at the port (insufflated at 12 mmHg), the smaller
+                         workspace of work inside a phantom, slower motion, no contact.
+``trocar-contact``       ``trocar`` plus contact episodes: the tip grasps a compliant handle
+                         on a 6-axis force sensor (sensor channel recorded).
+``insufflation-change``  ``trocar`` with the pressure stepping from 12 to 20 mmHg at 40 % of
+                         the session, plus occasional contacts (sensor recorded).
+``instrument-drift``     ``trocar`` with seal friction ramping up 60 % and wrist friction up
+                         80 % over the session (wear), plus occasional contacts.
+``insufflation-high``    ``insufflation-change`` at 20 mmHg from the start; a seed's motion,
+                         contacts and noise are those of ``insufflation-change`` (the
+                         reference of ``wrenchd recovery --settled``).
+=======================  ================================================================
 
 Everything random (trajectory, contact times, noise, the patient) comes from one seed, so a
-scenario is reproducible to the byte.
-
-Patients: by default every session is the same patient (the effects' default seal, body wall,
-incision and pressure). ``run_scenario(..., patients=PatientRanges())`` draws a patient per
-session instead (:mod:`wrenchd.adapters.sim.patients`: ranges and sources); the draw comes from
-its own stream of the seed, so the motion, contacts and noise of a seed are the same with or
-without variation, and it is recorded in ``metadata["patient"]``.
+scenario is reproducible to the byte. Every session is the same patient unless
+:func:`run_scenario` is given patient ranges (:mod:`wrenchd.adapters.sim.patients`).
 """
 
 from __future__ import annotations
@@ -199,6 +194,12 @@ def run_scenario(name: str, duration_s: float, seed: int, model: PhysicsModel | 
     ``handle_nm_per_rad`` sets the contact handle's torsional stiffness [N m/rad];
     ``force_sensor`` overrides whether the sensor channel is recorded (its noise has its own
     stream, so recording it changes nothing else).
+
+    Patients: by default every session is the same patient (the effects' default seal, body
+    wall, incision and pressure). ``patients=PatientRanges()`` draws a patient per session
+    instead (:mod:`wrenchd.adapters.sim.patients`: ranges and sources); the draw comes from
+    its own stream of the seed, so the motion, contacts and noise of a seed are the same with
+    or without variation, and it is recorded in ``metadata["patient"]``.
     """
     try:
         scenario = SCENARIOS[name]
