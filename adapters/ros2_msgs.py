@@ -2,16 +2,12 @@
 
 The daemon's log (:mod:`wrenchd.adapters.mcap_log`), simulated sessions
 (:mod:`wrenchd.adapters.mcap_session`) and replay outputs are MCAP files laid out as ROS 2's
-rosbag2 MCAP storage writes them: profile ``ros2``, every message CDR (message encoding
-``cdr``), every schema the type's complete message definition (schema encoding ``ros2msg``):
-the type's .msg text, then for each type it depends on (depth first, each once, in name order,
-as rosbag2's ``LocalMessageDefinitionSource`` walks them) a line of 80 ``=``, a line
-``MSG: pkg/Type`` and that type's text (rosbag2's ``docs/message_definition_encoding.md``). The
-``MSG:`` line names the type as the fields reference it, ``pkg/Type`` (a field type without
-package is completed with the referring type's package), as rosbag2 writes it: Foxglove's
-parser (``@foxglove/rosmsg``) matches the two names literally and fails on ``pkg/msg/Type``
-lines below ``pkg/Type`` fields. So ``ros2 bag info`` / ``ros2 bag play``, Foxglove,
-``rosbags`` and the mcap library's ROS 2 decoder open the files without wrenchd.
+rosbag2 MCAP storage writes them, so that ``ros2 bag info`` / ``ros2 bag play``, Foxglove,
+``rosbags`` and the mcap library's ROS 2 decoder open them without wrenchd: profile ``ros2``,
+every message CDR (message encoding ``cdr``), every schema the type's complete message
+definition (schema encoding ``ros2msg``, laid out as :func:`full_definition` says, after
+rosbag2's ``docs/message_definition_encoding.md``). Profile and encoding names are mcap's own
+(:mod:`mcap.well_known`).
 
 Types: the standard ``sensor_msgs/msg/JointState`` and ``geometry_msgs/msg/WrenchStamped`` and
 the project's own package ``wrenchd_msgs`` (:data:`MSG_TEXT`). CDR (de)serialisation is the
@@ -19,12 +15,10 @@ the project's own package ``wrenchd_msgs`` (:data:`MSG_TEXT`). CDR (de)serialisa
 texts below. This module owns the type stores every adapter uses (:func:`typestore`, and
 :func:`jazzy_typestore` for REP-2011 type hashes) and the conversions between nanosecond stamps
 and ``builtin_interfaces/msg/Time`` (:data:`NS_PER_S`, :func:`split_ns`, :func:`stamp`,
-:func:`header`, :func:`time_ns`). Profile and encoding names are mcap's own
-(:mod:`mcap.well_known`).
+:func:`header`, :func:`time_ns`).
 
-A file an earlier version wrote, whose definition of a type differs from today's
-(``wrenchd_msgs/msg/Estimate`` was float64 with ``predicted`` torques before it became float32),
-is decoded with the definition stored in it (:func:`deserialize`).
+A file whose stored definition of a type differs from :data:`MSG_TEXT`'s is decoded with the
+definition stored in it (:func:`deserialize`).
 """
 
 from __future__ import annotations
@@ -141,7 +135,16 @@ def dependencies(typename: str) -> list[str]:
 
 @functools.cache
 def full_definition(typename: str) -> str:
-    """The complete ``ros2msg`` definition of ``typename`` (module docstring)."""
+    """The complete ``ros2msg`` definition of ``typename``, as rosbag2 writes it (rosbag2's
+    ``docs/message_definition_encoding.md``).
+
+    The type's .msg text, then for each type it depends on (depth first, each once, in name
+    order, as rosbag2's ``LocalMessageDefinitionSource`` walks them) a line of 80 ``=``, a line
+    ``MSG: pkg/Type`` and that type's text. The ``MSG:`` line names the type as the fields
+    reference it, ``pkg/Type`` (a field type without package is completed with the referring
+    type's package), as rosbag2 writes it: Foxglove's parser (``@foxglove/rosmsg``) matches the
+    two names literally and fails on ``pkg/msg/Type`` lines below ``pkg/Type`` fields.
+    """
     seen: set[str] = set()
 
     def walk(name: str) -> str:
