@@ -276,21 +276,17 @@ class ArmPipeline:
         adaptation eager (``drift`` event)."""
         if self.drift.update(t, residual):
             self.counters.drifts += 1
-            self._adapt_until = t + self.config.adaptation.eager_s
             events.append(Event(t, EventKind.DRIFT, {"arm": self.arm,
-                                             "level": self.drift.level(residual)}))
-            if self.backend is not None:
-                self.backend.drift(t)
+                                                     "level": self.drift.level(residual)}))
+            self._eager(t)
 
     def _eager(self, t: float) -> None:
+        """Adaptation is eager (and drift-triggered offers open) for ``eager_s`` from ``t``."""
         self._adapt_until = t + self.config.adaptation.eager_s
         if self.backend is not None:
             self.backend.drift(t)
 
-    @property
-    def guard(self):
-        """The calibration guard (None: none)."""
-        return self.calibration.guard
+    guard = property(lambda self: self.calibration.guard, doc="The calibration guard or None.")
 
     @property
     def calibrating(self) -> bool:

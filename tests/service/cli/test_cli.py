@@ -161,8 +161,9 @@ def test_compare_writes_the_table_json_and_a_plot_per_session(tmp_path):
     assert by_policy["gated"]["final_model_version"] > 0       # it adapted
     (drift,) = by_policy["gated"]["drifts"]
     assert drift["free_force_error_after_N"] > 0
-    table = (out / "compare.md").read_text()
+    table, detector = (out / "compare.md").read_text().split("## The gate as a detector")
     assert table.count("sim:insufflation-change:20:1 |") == 2
+    assert detector.count("sim:insufflation-change:20:1 |") == 2
     png = (out / "insufflation-change_20_1.png").read_bytes()
     assert png[:8] == b"\x89PNG\r\n\x1a\n"
     bad = wrenchd("compare", "--policies", "gated,nonsense", "--sessions",
