@@ -127,7 +127,8 @@ def served_free_motion(spec: str, free_space, policies: Sequence[str]) -> list[d
 def _rows(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
     """The figures of each compare row that the report shows."""
     keep = ("session", "policy", "samples", "wall_s", "setup_changes", "truth", "false_force_N",
-            "gate", "gate_episodes", "contacts_found", "contamination", "final_model_version",
+            "gate", "gate_episodes", "gate_detector", "contacts_found", "contamination",
+            "final_model_version",
             "estimated_force_mean_N", "events")
     return [{k: r[k] for k in keep if k in r} for r in rows]
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import re
 from typing import Any
 
+from wrenchd.service.replay.detector import detector_table
 from wrenchd.service.studies.real_data_report import known_loads_section, tip_force_section
 
 
@@ -77,6 +78,10 @@ def injected_section(rows: list[dict[str, Any]]) -> list[str]:
             f"{found.get('found', '-')} of {found.get('episodes', '-')} | "
             f"{_f(_get(r, 'gate', 'precision'))} | {cont.get('in_contact', '-')} "
             f"({cont.get('in_contact_after_calibration', '-')}) |")
+    lines += ["", "The gate as a detector on the same sessions (episodes peaking over 1 N; delay from "
+              "the 0.3 N onset to the first flag; false alarms: flagged runs with no true contact "
+              "within 0.5 s; `wrenchd compare`'s `gate_detector`):\n", detector_table(
+                  [{**row, "session": _name(row["session"])} for row in rows])]
     return lines + [""]
 
 
