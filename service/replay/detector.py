@@ -114,24 +114,54 @@ def _c(x: Any, fmt: str = "{:.2f}") -> str:
     return "n/a" if x is None else fmt.format(x)
 
 
+def pooled(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """One policy's ``gate_detector`` over several sessions: episodes and false alarms summed,
+    delays pooled, the lowest sample precision and the contact offered to training summed."""
+    ds = [m["gate_detector"] for m in rows]
+    fa = [d["false_alarms"] for d in ds]
+    free, after = sum(f["free_min"] for f in fa), sum(f["after_change"]["free_min"] for f in fa)
+    count, count_after = sum(f["count"] for f in fa), sum(f["after_change"]["count"] for f in fa)
+    precisions = [(m.get("gate_episodes") or {}).get("precision") for m in rows]
+    return {
+        "sessions": len(rows), "episodes": sum(d["episodes"] for d in ds),
+        "found": sum(d["found"] for d in ds), "missed_over_N": sum(d["missed_over_N"] for d in ds),
+        "delay_s": _stats([x for d in ds for x in d.get("delay_each_s", [])]),
+        "false_alarms": {"count": count, "free_min": free,
+                         "per_min": count / free if free > 0 else None,
+                         "after_change": {"count": count_after, "free_min": after,
+                                          "per_min": count_after / after if after > 0 else None}},
+        "min_precision": min((p for p in precisions if p is not None), default=None),
+        "offered_in_contact": sum((m.get("contamination") or {}).get(
+            "in_contact_after_calibration", 0) for m in rows)}
+
+
+def _row(name: str, policy: str, d: dict[str, Any], precision: Any, offered: Any) -> str:
+    fa, dl = d["false_alarms"], d["delay_s"]
+    return "| " + " | ".join([
+        name, policy, f"{d['found']} of {d['episodes']}", str(d["missed_over_N"]),
+        f"{_c(dl['median'])} / {_c(dl['p95'])} / {_c(dl['max'])}",
+        f"{_c(fa['per_min'])} ({fa['count']})",
+        f"{_c(fa['after_change']['per_min'])} ({fa['after_change']['count']})",
+        _c(precision, "{:.3f}"), str(offered)]) + " |"
+
+
 def detector_table(rows: list[dict[str, Any]]) -> str:
     """Markdown: one row per replay's ``gate_detector`` (with its sample precision and the
-    contact samples offered to training after the calibration)."""
+    contact samples offered to training after the calibration), and per policy over several
+    sessions a pooled row (:func:`pooled`; its precision the lowest)."""
     out = ["| session | policy | contacts found | missed > 2 N | delay median / p95 / max [s] "
            "| false alarms / min | after a change / min | sample precision | contact offered "
            "to training |", "|" + "---|" * 9]
-    for m in rows:
-        d = m.get("gate_detector")
-        if d is None:
-            continue
-        fa, dl = d["false_alarms"], d["delay_s"]
-        out.append("| " + " | ".join([
-            m["session"], m["policy"], f"{d['found']} of {d['episodes']}",
-            str(d["missed_over_N"]),
-            f"{_c(dl['median'])} / {_c(dl['p95'])} / {_c(dl['max'])}",
-            f"{_c(fa['per_min'])} ({fa['count']})",
-            f"{_c(fa['after_change']['per_min'])} ({fa['after_change']['count']})",
-            _c((m.get("gate_episodes") or {}).get("precision"), "{:.3f}"),
-            str((m.get("contamination") or {}).get("in_contact_after_calibration", "n/a"))])
-            + " |")
+    scored = [m for m in rows if m.get("gate_detector") is not None]
+    for m in scored:
+        out.append(_row(m["session"], m["policy"], m["gate_detector"],
+                        (m.get("gate_episodes") or {}).get("precision"),
+                        (m.get("contamination") or {}).get("in_contact_after_calibration",
+                                                           "n/a")))
+    for policy in dict.fromkeys(m["policy"] for m in scored):
+        group = [m for m in scored if m["policy"] == policy]
+        if len(group) > 1:
+            p = pooled(group)
+            out.append(_row(f"**all {p['sessions']}**", policy, p, p["min_precision"],
+                            p["offered_in_contact"]))
     return "\n".join(out) + "\n"

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from wrenchd.service.replay.detector import detector_scores, detector_table
+from wrenchd.service.replay.detector import detector_scores, detector_table, pooled
 
 T = np.arange(0.0, 180.0, 0.01)                     # 3 minutes at 100 Hz
 
@@ -42,6 +42,24 @@ def test_a_flag_before_the_onset_is_no_delay_and_unjudged_samples_count_nothing(
     assert s["delay_s"]["max"] == 0.0 and s["false_alarms"]["count"] == 0
     s = detector_scores(T, force > 0, force, flagged, T >= 20.0, [])
     assert s["episodes"] == 0 and s["false_alarms"]["count"] == 0
+
+
+def test_sessions_pool_into_one_row_per_policy():
+    a = ramp(10, 14, 3.0)
+    b = ramp(50, 53, 2.5)
+    rows = [{"session": name, "policy": "gated", "gate_episodes": {"precision": p},
+             "contamination": {"in_contact_after_calibration": k},
+             "gate_detector": detector_scores(T, f > 0, f, flag, T >= 0, [])}
+            for name, f, flag, p, k in (
+                ("a", a, (T > 10.5) & (T < 14) | (T > 100) & (T < 100.2), 0.9, 0),
+                ("b", b, (T > 50.2) & (T < 53), 1.0, 7))]
+    p = pooled(rows)
+    assert (p["episodes"], p["found"], p["false_alarms"]["count"]) == (2, 2, 1)
+    assert p["delay_s"]["max"] == pytest.approx(0.41, abs=0.011)
+    assert p["false_alarms"]["free_min"] == pytest.approx(sum(
+        r["gate_detector"]["false_alarms"]["free_min"] for r in rows))
+    assert p["min_precision"] == 0.9 and p["offered_in_contact"] == 7
+    assert "| **all 2** | gated | 2 of 2 |" in detector_table(rows)
 
 
 def test_the_table_has_a_row_per_scored_replay():
