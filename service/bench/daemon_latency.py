@@ -90,6 +90,24 @@ def _cpu_s(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
+def _cpu_now(pid: int) -> dict[str, float]:
+    """CPU seconds of the daemon and of its children (the worker), with the wall clock."""
+    return {"daemon": _cpu_s(pid), "worker": sum(_cpu_s(c) for c in _children(pid)),
+            "wall": time.monotonic()}
+
+
+def _phase(lat_us: np.ndarray, c0: dict[str, float], c1: dict[str, float],
+           samples: float) -> dict[str, float | None]:
+    """Latency percentiles [us] and CPU [us per sample; fraction of a core] of one phase."""
+    wall = max(c1["wall"] - c0["wall"], 1e-9)
+    return {"e2e_p50_us": float(np.percentile(lat_us, 50)) if lat_us.size else None,
+            "e2e_p99_us": float(np.percentile(lat_us, 99)) if lat_us.size else None,
+            "daemon_cpu_us_per_sample": round((c1["daemon"] - c0["daemon"]) * 1e6
+                                              / max(samples, 1.0), 1),
+            "daemon_cpu_fraction": round((c1["daemon"] - c0["daemon"]) / wall, 3),
+            "worker_cpu_fraction": round((c1["worker"] - c0["worker"]) / wall, 3)}
+
+
 def _stolen_windows(steal: list[tuple[float, int | None]]) -> list[tuple[float, float]]:
     """``[(start_s, end_s)]`` of the sampling windows in which the hypervisor stole CPU time.
     ``steal`` is ``[(time_s, cumulative ticks)]``; a window is one sampling interval."""
@@ -151,7 +169,8 @@ def _await_listening(daemon: subprocess.Popen, n_arms: int, timeout_s: float) ->
 def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 20.0,
                   warmup_s: float = 3.0, adaptation: bool = True,
                   log: bool = True, floor: bool = False, pin: bool = False,
-                  realtime: int | str = "auto", intake: str = "channel") -> dict[str, Any]:
+                  realtime: int | str = "auto", intake: str = "channel",
+                  split_s: float | None = None) -> dict[str, Any]:
     """Run the benchmark; returns the result dictionary.
 
     Also samples the daemon's resident memory (with its worker) once a second: the soak run
@@ -164,7 +183,9 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
     real-time class, and a bench left in the normal class would be measured waiting behind the
     machine's other work (under load, its p99 is several times the one with both in the
     real-time class). The floor bench runs in the normal class. ``intake`` is the daemon's
-    ``[ring] intake`` (and the floor's)."""
+    ``[ring] intake`` (and the floor's). With ``split_s`` the result also has ``phases``: the
+    latency and CPU figures of the samples sent before ``split_s`` (after the warm-up; the
+    daemon's calibration minute when it is ``calibration_s``) and of those after it."""
     from wrenchd.adapters.sim.scenarios import run_scenario
     from wrenchd.adapters.sim.simulator import SimulatorConfig
 
@@ -237,12 +258,15 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
         next_rss = 0.0
         next_steal = 0.0
         cpu_at: dict[str, float] = {}
+        cpu_split: dict[str, float] = {}
         first = int(warmup_s * rate_hz)
+        split = int(split_s * rate_hz) if split_s is not None and split_s > warmup_s else None
         for i in range(n):
             due = start + i * period_ns
             if i == first:              # CPU time spent by the daemon and its worker from here
-                cpu_at = {"daemon": _cpu_s(daemon.pid), "worker": sum(
-                    _cpu_s(c) for c in _children(daemon.pid)), "wall": time.monotonic()}
+                cpu_at = _cpu_now(daemon.pid)
+            if i == split:
+                cpu_split = _cpu_now(daemon.pid)
             if (due - start) / 1e9 >= next_steal:
                 steal.append(((time.perf_counter_ns() - start) / 1e9, steal_ticks()))
                 next_steal += STEAL_PERIOD_S
@@ -255,9 +279,7 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
             for arm in arms:
                 sent_ns[arm][i] = time.perf_counter_ns()
                 pubs[arm].put(payloads[i])
-        cpu = {"daemon": _cpu_s(daemon.pid),
-               "worker": sum(_cpu_s(c) for c in _children(daemon.pid)),
-               "wall": time.monotonic()}
+        cpu = _cpu_now(daemon.pid)
         steal.append(((time.perf_counter_ns() - start) / 1e9, steal_ticks()))
         time.sleep(2.0)                                     # the last wrenches come back
         gc.enable()
@@ -359,7 +381,18 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
              "worker_cpu_fraction": round((cpu["worker"] - cpu_at["worker"])
                                           / (cpu["wall"] - cpu_at["wall"]), 3),
              "load_average_1min": (load_average() or [None])[0]}
-    return {**memory, **usage, **hypervisor, "e2e_p50_us": float(np.percentile(pooled, 50)),
+    phases = None
+    if cpu_split:
+        at = np.array(latency_at)
+        rate = sum(a["rate_hz"] for a in per_arm.values())
+        phases = {name: _phase(np.array(latencies)[mask] if latencies else np.array([]), c0, c1,
+                               rate * (span[1] - span[0]))
+                  for name, mask, c0, c1, span in (
+                      ("before", at < split_s, cpu_at, cpu_split, (warmup_s, split_s)),
+                      ("after", at >= split_s, cpu_split, cpu, (split_s, total_s)))}
+        phases["split_s"] = split_s
+    return {**memory, **usage, **hypervisor, "phases": phases,
+            "e2e_p50_us": float(np.percentile(pooled, 50)),
             "e2e_p99_us": float(np.percentile(pooled, 99)),
             # samples without a wrench back (the daemon's ring drops are among them)
             "dropped": int(sum(a["missing"] for a in per_arm.values())),

@@ -1,0 +1,76 @@
+"""The daemon against its plumbing floor, measured in the same run (``wrenchd bench ratio``).
+
+Latency and CPU on a shared machine drift from minute to minute, so a target is a ratio to
+the floor (:mod:`wrenchd.service.bench.floor`: the daemon's intake and publishing without
+estimation) measured beside it: ``pairs`` times the floor and then the daemon, one after the
+other, each over the same simulated stream. Per pair, ``ratio_p99`` (end-to-end p99 latency)
+and ``ratio_cpu`` (daemon CPU per sample); the daemon's calibration minute (eager adaptation,
+the calibration guard) and the time after it are reported apart (``phases``), each against
+the same floor. Load and stolen CPU come with every run.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable
+
+import numpy as np
+
+from wrenchd.service.bench.daemon_latency import bench_service
+from wrenchd.service.pipeline.config import PipelineConfig
+
+#: the daemon's calibration [s]: the phases split there
+CALIBRATION_S = PipelineConfig().calibration_s
+
+
+def _ratio(num: float | None, den: float | None) -> float | None:
+    return None if num is None or not den else num / den
+
+
+def pair_ratios(floor: dict[str, Any], daemon: dict[str, Any]) -> dict[str, Any]:
+    """Ratios of one pair: overall and per phase of the daemon, to the floor's overall."""
+    p99, cpu = floor["e2e_p99_us"], floor["daemon_cpu_us_per_sample"]
+    out = {"ratio_p99": _ratio(daemon["e2e_p99_us"], p99),
+           "ratio_cpu": _ratio(daemon["daemon_cpu_us_per_sample"], cpu)}
+    for name in ("before", "after"):
+        ph = (daemon.get("phases") or {}).get(name)
+        if ph:
+            out[name] = {"ratio_p99": _ratio(ph["e2e_p99_us"], p99),
+                         "ratio_cpu": _ratio(ph["daemon_cpu_us_per_sample"], cpu)}
+    return out
+
+
+def _median(values: list[float | None]) -> float | None:
+    kept = [v for v in values if v is not None]
+    return float(np.median(kept)) if kept else None
+
+
+def bench_ratio(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 90.0,
+                pairs: int = 2, split_s: float = CALIBRATION_S,
+                log: Callable[[str], None] = lambda _: None, **kwargs: Any) -> dict[str, Any]:
+    """``pairs`` x (floor, daemon) over ``duration_s`` each (keyword arguments go to
+    :func:`~wrenchd.service.bench.daemon_latency.bench_service`); the median of the pairs'
+    ratios, each pair's runs and ratios."""
+    if pairs < 1:
+        raise ValueError("pairs must be at least 1")
+    runs = []
+    for k in range(pairs):
+        floor = bench_service(n_arms, rate_hz, duration_s, floor=True, **kwargs)
+        log(f"pair {k + 1}: floor p99 {floor['e2e_p99_us']:.0f} us")
+        daemon = bench_service(n_arms, rate_hz, duration_s, split_s=split_s, **kwargs)
+        log(f"pair {k + 1}: daemon p99 {daemon['e2e_p99_us']:.0f} us, "
+            f"dropped {daemon['dropped']}")
+        runs.append({"floor": floor, "daemon": daemon, **pair_ratios(floor, daemon)})
+    summary: dict[str, Any] = {
+        key: _median([r[key] for r in runs]) for key in ("ratio_p99", "ratio_cpu")}
+    for name in ("before", "after"):
+        summary[name] = {key: _median([(r.get(name) or {}).get(key) for r in runs])
+                         for key in ("ratio_p99", "ratio_cpu")}
+    return {"arms": n_arms, "rate_hz": rate_hz, "duration_s": duration_s, "pairs": pairs,
+            "split_s": split_s, **summary,
+            "dropped": sum(r["daemon"]["dropped"] for r in runs),
+            "floor_p99_us": [r["floor"]["e2e_p99_us"] for r in runs],
+            "daemon_p99_us": [r["daemon"]["e2e_p99_us"] for r in runs],
+            "load_average_1min": [r[w]["load_average_1min"] for r in runs
+                                  for w in ("floor", "daemon")],
+            "steal_cpu_s": [r[w]["steal_cpu_s"] for r in runs for w in ("floor", "daemon")],
+            "runs": runs}
