@@ -6,7 +6,8 @@ estimation) measured beside it: ``pairs`` times the floor and then the daemon, o
 other, each over the same simulated stream. Per pair, ``ratio_p99`` (end-to-end p99 latency)
 and ``ratio_cpu`` (daemon CPU per sample); the daemon's calibration minute (eager adaptation,
 the calibration guard) and the time after it are reported apart (``phases``), each against
-the same floor. Load and stolen CPU come with every run.
+the same floor. Load and stolen CPU come with every run, and the p99 ratio of the samples
+during which the hypervisor stole nothing (``ratio_p99_without_steal``).
 """
 
 from __future__ import annotations
@@ -30,7 +31,10 @@ def pair_ratios(floor: dict[str, Any], daemon: dict[str, Any]) -> dict[str, Any]
     """Ratios of one pair: overall and per phase of the daemon, to the floor's overall."""
     p99, cpu = floor["e2e_p99_us"], floor["daemon_cpu_us_per_sample"]
     out = {"ratio_p99": _ratio(daemon["e2e_p99_us"], p99),
-           "ratio_cpu": _ratio(daemon["daemon_cpu_us_per_sample"], cpu)}
+           "ratio_cpu": _ratio(daemon["daemon_cpu_us_per_sample"], cpu),
+           # the samples during which the hypervisor stole no CPU, in both runs
+           "ratio_p99_without_steal": _ratio(daemon.get("e2e_p99_us_without_steal"),
+                                             floor.get("e2e_p99_us_without_steal"))}
     for name in ("before", "after"):
         ph = (daemon.get("phases") or {}).get(name)
         if ph:
@@ -61,7 +65,8 @@ def bench_ratio(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 90
             f"dropped {daemon['dropped']}")
         runs.append({"floor": floor, "daemon": daemon, **pair_ratios(floor, daemon)})
     summary: dict[str, Any] = {
-        key: _median([r[key] for r in runs]) for key in ("ratio_p99", "ratio_cpu")}
+        key: _median([r[key] for r in runs])
+        for key in ("ratio_p99", "ratio_cpu", "ratio_p99_without_steal")}
     for name in ("before", "after"):
         summary[name] = {key: _median([(r.get(name) or {}).get(key) for r in runs])
                          for key in ("ratio_p99", "ratio_cpu")}

@@ -28,6 +28,7 @@ def test_a_pair_gives_ratios_overall_and_per_phase():
 def test_ratios_without_a_phase_or_a_floor_figure():
     floor = {"e2e_p99_us": 500.0, "daemon_cpu_us_per_sample": 0.0}
     daemon = {"e2e_p99_us": 1000.0, "daemon_cpu_us_per_sample": 300.0, "phases": None}
-    assert pair_ratios(floor, daemon) == {"ratio_p99": 2.0, "ratio_cpu": None}
+    assert pair_ratios(floor, daemon) == {"ratio_p99": 2.0, "ratio_cpu": None,
+                                          "ratio_p99_without_steal": None}
     with pytest.raises(ValueError):
         bench_ratio(pairs=0)
