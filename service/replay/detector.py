@@ -75,7 +75,10 @@ def detector_scores(t: np.ndarray, contact: np.ndarray, force_n: np.ndarray,
     contact = np.asarray(contact, dtype=bool)
     flagged = np.asarray(flagged, dtype=bool) & judged
     delays, forces, missed = [], [], []
+    near = np.zeros(len(t), dtype=bool)                  # within FA_MARGIN_S of a contact
     for a, b in zip(*true_runs(contact)):
+        near[np.searchsorted(t, t[a] - FA_MARGIN_S):np.searchsorted(t, t[b - 1] + FA_MARGIN_S,
+                                                                     side="right")] = True
         peak = float(force_n[a:b].max())
         if not judged[a] or peak < MIN_PEAK_N:
             continue
@@ -86,10 +89,6 @@ def detector_scores(t: np.ndarray, contact: np.ndarray, force_n: np.ndarray,
         onset = a + int(np.argmax(force_n[a:b] > ONSET_N))
         delays.append(max(0.0, float(t[a + hit[0]] - t[onset])))
         forces.append(float(force_n[a + hit[0]]))
-    near = np.zeros(len(t), dtype=bool)                  # within FA_MARGIN_S of a contact
-    for a, b in zip(*true_runs(contact)):
-        near[np.searchsorted(t, t[a] - FA_MARGIN_S):np.searchsorted(t, t[b - 1] + FA_MARGIN_S,
-                                                                     side="right")] = True
     alarms = [float(t[a]) for a, b in zip(*true_runs(flagged)) if not near[a:b].any()]
     free = judged & ~contact
     window = np.zeros(len(t), dtype=bool)
