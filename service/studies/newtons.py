@@ -12,7 +12,8 @@ Known loads (``known_loads``): a mass at a given point of a given link
 (:mod:`wrenchd.models.physics.point_load`) gives the expected external torques; each model's
 estimated external torque is scored against them and the mass refitted with the point held,
 also with gravity turned about the yaw axis (:data:`GRAVITY_TILTS_DEG`) as a sensitivity to the
-assumed gravity direction (the base frame's -z).
+assumed gravity direction (the base frame's -z), and with the point moved by
+:data:`POINT_SHIFT_M` along the link's x and y as a sensitivity to the given point.
 """
 
 from __future__ import annotations
@@ -108,6 +109,10 @@ class KnownLoad:
 #: Rotations of gravity about the yaw axis [deg] over which the fitted mass's sensitivity to
 #: the assumed gravity direction is reported.
 GRAVITY_TILTS_DEG = (-5.0, 5.0)
+#: Shift [m] of the load's point along the link frame's x and y (each way) over which the
+#: fitted mass's sensitivity to the given point is reported: the WPI photographs' positions
+#: were read off a tape, "a centimetre either way is plausible" (../shared/data/wpi-psm).
+POINT_SHIFT_M = 0.01
 
 
 def _yaw_axis() -> np.ndarray:
@@ -159,6 +164,14 @@ def known_load_study(trained: Trained, loads: Sequence[KnownLoad]) -> list[dict[
         tilted = {f"{deg:+g}": point_load_torque(js.position, load.link, point, dt,
                                                  _rotated_gravity(deg))
                   for deg in GRAVITY_TILTS_DEG}
+        # the same load at the point moved along the link's x and y: every model
+        shifted = {}
+        for axis, name in ((0, "x"), (1, "y")):
+            for sign in (-1.0, 1.0):
+                moved = point.copy()
+                moved[axis] += sign * POINT_SHIFT_M
+                shifted[f"{name}{sign * POINT_SHIFT_M * 100:+g}cm"] = point_load_torque(
+                    js.position, load.link, moved, dt)
         for key, pred in trained.predict(js).items():
             if key.startswith("_"):
                 continue
@@ -169,12 +182,15 @@ def known_load_study(trained: Trained, loads: Sequence[KnownLoad]) -> list[dict[
                 "fitted_mass_static_kg": fitted_mass(static_per_kg, external),
                 "fitted_mass_gravity_rotated_kg": {
                     tilt: fitted_mass(torque, external) for tilt, torque in tilted.items()},
+                "fitted_mass_point_moved_kg": {
+                    move: fitted_mass(torque, external) for move, torque in shifted.items()},
                 "torque_rmse": rmse(external, expected),
                 "force_error_N": force_stats(force)}
         rec["served"] = "hybrid" if "hybrid" in rec["models"] else next(iter(rec["models"]))
         served = rec["models"][rec["served"]]
         rec["fitted_mass_kg"] = served["fitted_mass_kg"]
         rec["mass_error"] = served["fitted_mass_kg"] / load.mass_kg - 1.0
+        rec["fitted_mass_point_moved_kg"] = served["fitted_mass_point_moved_kg"]
         rec["torque_rmse"] = served["torque_rmse"]
         rec["force_error_N"] = served["force_error_N"]
         out.append(rec)

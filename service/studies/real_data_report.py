@@ -129,6 +129,14 @@ def tip_force_section(r: dict[str, Any]) -> list[str]:
     return lines + [""]
 
 
+def _moved_range(model: dict[str, Any]) -> str:
+    """``lo-hi g`` of the fitted mass with the point moved (``-`` where not computed)."""
+    moved = model.get("fitted_mass_point_moved_kg")
+    if not moved:
+        return "-"
+    return f"{min(moved.values()) * 1000:.0f} to {max(moved.values()) * 1000:.0f} g"
+
+
 def known_loads_section(loads: list[dict[str, Any]]) -> list[str]:
     """Expected against estimated external torques of each known load."""
     models = [k for k, _ in COLUMNS if k in loads[0]["models"]]
@@ -139,9 +147,12 @@ def known_loads_section(loads: list[dict[str, Any]]) -> list[str]:
               "torque on the expected one per kilogram, over the joints the load acts on, the "
               "point held. A recording at another rate than the hybrid's is interpolated to "
               "it. `+-5 deg`: the fitted mass with gravity turned 5 degrees about the yaw axis "
-              "(how much the assumed gravity direction matters).\n"),
+              "(how much the assumed gravity direction matters); `point +-1 cm`: the range of "
+              "the fitted mass with the point moved 1 cm either way along the link's x or y "
+              "(the photographs' positions are read off a tape to about a centimetre).\n"),
              "| recording | rate | mass | link, point [m] | model | fitted mass | -5 deg | +5 deg "
-             "| torque RMSE yaw, pitch | force error RMS [N] |", "|" + " --- |" * 10]
+             "| point +-1 cm | torque RMSE yaw, pitch | force error RMS [N] |",
+             "|" + " --- |" * 11]
     for rec in loads:
         for key in models:
             m = rec["models"][key]
@@ -152,6 +163,7 @@ def known_loads_section(loads: list[dict[str, Any]]) -> list[str]:
                 f"({', '.join(f'{v:g}' for v in rec['point_m'])}) | {key} | "
                 f"{m['fitted_mass_kg'] * 1000:.1f} g ({100 * (m['fitted_mass_kg'] / rec['mass_kg'] - 1):+.0f} %) | "
                 f"{rot['-5'] * 1000:.1f} g | {rot['+5'] * 1000:.1f} g | "
+                f"{_moved_range(m)} | "
                 f"{m['torque_rmse'][0]:.3f}, {m['torque_rmse'][1]:.3f} | "
                 f"{m['force_error_N']['rms']:.2f} |")
     return lines + [""]

@@ -104,6 +104,10 @@ def test_newtons_at_the_tip_and_known_loads(wpi_data, tmp_path):
                            (slow205, 0.170, 0.200)):
         assert low < rec["fitted_mass_kg"] < high, (rec["file"], rec["fitted_mass_kg"])
         assert rec["force_error_N"]["rms"] < 1.5
+        # The point read off a tape to a centimetre: moving it changes the mass both ways.
+        moved = rec["fitted_mass_point_moved_kg"]
+        assert set(moved) == {"x-1cm", "x+1cm", "y-1cm", "y+1cm"}
+        assert min(moved.values()) < rec["fitted_mass_kg"] < max(moved.values())
     text = out.read_text()
     assert "Newtons at the tip" in text and "Known loads" in text
 
