@@ -261,7 +261,10 @@ def replay_metrics(r: ReplayResult, session: Session) -> dict[str, Any]:
                               "fraction": bad / len(r.offered_t),
                               # the calibration minute trains on every sample by design
                               "in_contact_after_calibration": int(
-                                  bad_mask[r.offered_t >= t0 + calib].sum())}
+                                  bad_mask[r.offered_t >= t0 + calib].sum()),
+                              "episodes_after_calibration": offered_contact_episodes(
+                                  r, truth, pos[bad_mask & (r.offered_t >= t0 + calib)],
+                                  contact)}
     else:
         m["contamination"] = {"offered": 0, "in_contact": 0, "fraction": None,
                               "in_contact_after_calibration": 0}
@@ -273,6 +276,40 @@ def replay_metrics(r: ReplayResult, session: Session) -> dict[str, Any]:
     m["drifts"] = [{"id": name, "end_s": end, **_recovery(r.t, ef, ~contact, start)}
                    for name, start, end in drift_onsets(session)]
     return m
+
+
+#: ``offered_contact_episodes``: the free-motion force error is taken over this long before
+#: an episode's start [s].
+BEFORE_EPISODE_S = 10.0
+
+
+def offered_contact_episodes(r: ReplayResult, truth, offered: np.ndarray,
+                             contact: np.ndarray) -> list[dict[str, Any]]:
+    """The true contact episodes that samples offered to training fell in: for each, its start
+    [s], the samples offered, its peak true tip force [N] and the free-motion tip force error
+    RMS over the :data:`BEFORE_EPISODE_S` before it [N] (how far the estimate strayed when
+    nothing touched: a contact much weaker than that cannot be told from free motion).
+
+    ``offered``: session sample indices of the offered samples in contact; ``contact``: the
+    truth's contact flag per replayed sample."""
+    if not len(offered):
+        return []
+    in_c = truth.in_contact
+    episode = np.cumsum(np.diff(in_c.astype(np.int8), prepend=np.int8(0)) == 1)
+    force = np.linalg.norm(truth.external_wrench[:, :3], axis=1)
+    ef = force_error_n(r, truth)
+    out = []
+    for ep, n in zip(*np.unique(episode[offered], return_counts=True)):
+        members = np.flatnonzero((episode == ep) & in_c)
+        start = members[0]
+        # the replayed sample at (or first after) the episode's start; replay keeps order
+        t_start = float(r.t[min(int(np.searchsorted(r.sample, start)), len(r.t) - 1)])
+        before = (r.t >= t_start - BEFORE_EPISODE_S) & (r.t < t_start) & ~contact
+        out.append({"start_s": round(t_start, 3), "offered": int(n),
+                    "peak_N": float(force[members].max()),
+                    "free_error_before_N": (float(np.sqrt(np.mean(ef[before] ** 2)))
+                                            if before.any() else None)})
+    return out
 
 
 def _f(x: Any, digits: int = 3) -> str:

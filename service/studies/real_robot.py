@@ -93,6 +93,33 @@ def fit_bundle(data: Path, out: Path, config: RealRobotConfig) -> dict[str, Any]
                           progress=lambda *_: None)
 
 
+#: The reference for the set-up change's ``after`` figure: step 1 fitted on a recording's
+#: first ``REFERENCE_SPLIT_S`` seconds, scored on the rest of it (another stretch of the same
+#: motion, the same run).
+REFERENCE_SPLIT_S = 20.0
+
+
+def in_recording_reference(data: Path, config: RealRobotConfig) -> dict[str, Any]:
+    """Free-motion tip force [N] (RMS, p95) of the hybrid fitted on the first
+    :data:`REFERENCE_SPLIT_S` seconds of each recording of the set-up change and scored on the
+    rest: what a step 1 that knew that very run reads on time it did not see. The set-up
+    change's ``before`` window is in-sample for the bundle (fitted on all of
+    ``one_no_weight.csv``); its ``after`` window is not."""
+    from wrenchd.service.studies.newtons import force_stats, tip_forces
+    from wrenchd.service.studies.real_data import Source, Trained
+
+    out: dict[str, Any] = {"split_s": REFERENCE_SPLIT_S, "files": {}}
+    for name in ("one_no_weight.csv", "one_205g_parallel.csv"):
+        path = _path(data, name)
+        trained = Trained([Source(path, None, REFERENCE_SPLIT_S).load()], ["hybrid"], 0, None,
+                          config.hybrid_epochs, f"{path}:0:{REFERENCE_SPLIT_S:g}")
+        test = Source(path, REFERENCE_SPLIT_S, None).load()
+        pred = trained.predict(test)["hybrid"]
+        stats = force_stats(tip_forces(test.position, test.effort - pred))
+        out["files"][name] = {"rms": stats["rms"], "p95": stats["p95"]}
+    return out
+
+
 def served_free_motion(spec: str, free_space, policies: Sequence[str]) -> list[dict[str, Any]]:
     """The free-motion tip force [N] the pipeline publishes on ``spec`` (a session without
     contact), over the calibration minute and after it, per policy; the second after each seam
@@ -166,6 +193,7 @@ def run(data: str | Path, out: str | Path, config: RealRobotConfig | None = None
     log(f"set-up change: {', '.join(config.policies)} ...")
     r["setup_change"] = _rows(run_compare(list(config.policies), [change], out / "setup-change",
                                           free_space, log=log))
+    r["setup_change_reference"] = in_recording_reference(data, config)
     injected = [f"inject:{s}:concat:{_path(data, 'two.csv')}*{config.inject_repeats},"
                 f"{_path(data, 'one_no_weight.csv')}*{config.inject_repeats}"
                 for s in config.seeds]

@@ -42,7 +42,8 @@ def served_section(rows: list[dict[str, Any]]) -> list[str]:
     return lines + [""]
 
 
-def setup_change_section(rows: list[dict[str, Any]]) -> list[str]:
+def setup_change_section(rows: list[dict[str, Any]],
+                         reference: dict[str, Any] | None = None) -> list[str]:
     lines = ["## A real set-up change: 205 g on the parallelogram, unannounced\n",
              ("`wrenchd compare` with the bundle fitted on `one_no_weight.csv`, on "
               f"`{_name(rows[0]['session'])}`: the load appears where the recording changes. "
@@ -57,6 +58,15 @@ def setup_change_section(rows: list[dict[str, Any]]) -> list[str]:
                          f"{r.get('final_model_version', '-')} |")
     lines += ["", "Free-motion force over time per policy: `setup-change/` (plots and "
               "`compare.md`).", ""]
+    if reference:
+        files = reference["files"]
+        lines += [(f"What to hold `after` against: the bundle was fitted on all of "
+                   f"`one_no_weight.csv`, so `before` is in-sample. A hybrid step 1 fitted on the "
+                   f"first {reference['split_s']:g} s of a recording and scored on the rest of "
+                   "the same run reads " + ", ".join(
+                       f"`{name}` {v['rms']:.2f} N (p95 {v['p95']:.2f})"
+                       for name, v in files.items())
+                   + ": the level a model of that very run reaches on time it did not see."), ""]
     return lines
 
 
@@ -78,6 +88,17 @@ def injected_section(rows: list[dict[str, Any]]) -> list[str]:
             f"{found.get('found', '-')} of {found.get('episodes', '-')} | "
             f"{_f(_get(r, 'gate', 'precision'))} | {cont.get('in_contact', '-')} "
             f"({cont.get('in_contact_after_calibration', '-')}) |")
+    offered = [(r, e) for r in rows for e in (r.get("contamination") or {}).get(
+        "episodes_after_calibration") or []]
+    if offered:
+        lines += ["", ("The contacts that reached training after the calibration: each one's "
+                       "start, samples offered, true peak, and the free-motion force error over "
+                       "the 10 s before it (a contact no stronger than that error cannot be "
+                       "told from free motion by its size):\n"),
+                  "| session | start [s] | samples offered | true peak [N] | free-motion error "
+                  "before [N] |", "| --- | --- | --- | --- | --- |"]
+        lines += [f"| {_name(r['session'])} | {e['start_s']:.1f} | {e['offered']} | "
+                  f"{e['peak_N']:.2f} | {_f(e['free_error_before_N'])} |" for r, e in offered]
     lines += ["", "The gate as a detector on the same sessions (episodes peaking over 1 N; delay from "
               "the 0.3 N onset to the first flag; false alarms: flagged runs with no true contact "
               "within 0.5 s; `wrenchd compare`'s `gate_detector`):\n", detector_table(
@@ -95,11 +116,11 @@ def markdown(r: dict[str, Any]) -> str:
     lines += known_loads_section(step1["known_loads"])
     held = (r.get("bundle") or {}).get("held_out") or {}
     lines += [f"Bundle: `{r['bundle']['path']}/` (`wrenchd fit` on `one_no_weight.csv`, the "
-              "last 20 % held out)" + (f"; held-out RMSE per joint, hybrid: "
+              "last 20 % held out)" + ("; held-out RMSE per joint, hybrid: "
                                       + ", ".join(f"{v:.3f}" for v in held["hybrid_rmse"])
                                       if "hybrid_rmse" in held else "") + ".\n"]
     if r.get("served"):
         lines += served_section(r["served"])
-    lines += setup_change_section(r["setup_change"])
+    lines += setup_change_section(r["setup_change"], r.get("setup_change_reference"))
     lines += injected_section(r["injected"])
     return "\n".join(lines)

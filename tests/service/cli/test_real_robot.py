@@ -40,6 +40,11 @@ def test_the_real_robot_report_runs_end_to_end(wpi_data, tmp_path):
         assert change["before_N"] is not None and change["before_N"] > 0.0
     frozen = r["setup_change"][1]
     assert frozen["final_model_version"] == 0
+    # the after window's reference: step 1 fitted on each run's first 20 s, scored on the rest
+    ref = r["setup_change_reference"]["files"]
+    assert set(ref) == {"one_no_weight.csv", "one_205g_parallel.csv"}
+    for v in ref.values():
+        assert 0.1 < v["rms"] < 2.0 and v["p95"] > v["rms"]
     (injected,) = r["injected"]
     assert injected["session"].startswith("inject:3:concat:")
     assert "contamination" in injected and "false_force_N" in injected

@@ -130,6 +130,18 @@ def test_metrics_on_simulated_contact_session(fs, contact_session):
     after = contact_session.joint_states.t >= mu["gate"]["after_s"]
     assert mu["contamination"]["in_contact_after_calibration"] == int(
         truth.in_contact[after].sum())
+    # ungated, every contact episode after the calibration is among those offered, each
+    # with its true peak and the free-motion error before it
+    episodes = mu["contamination"]["episodes_after_calibration"]
+    rising = np.flatnonzero(np.diff(truth.in_contact.astype(int)) == 1) + 1
+    starts = contact_session.joint_states.t[rising]
+    starts = starts[starts >= mu["gate"]["after_s"]]
+    assert [e["start_s"] for e in episodes] == pytest.approx(starts.tolist(), abs=1e-6)
+    assert sum(e["offered"] for e in episodes) <= mu["contamination"]["in_contact"]
+    force = np.linalg.norm(truth.external_wrench[:, :3], axis=1)
+    assert max(e["peak_N"] for e in episodes) == pytest.approx(force[after].max())
+    assert all(e["free_error_before_N"] is None or e["free_error_before_N"] >= 0
+               for e in episodes)
 
 
 def test_drift_recovery_metric_on_insufflation(fs):
