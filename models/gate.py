@@ -131,6 +131,12 @@ class GateConfig(BaseModel):
     max_reversal_factor: float = Field(
         default=10.0, ge=1.0,
         description="a reversal bin's spread is between 1 and this x the joint's scale")
+    reversal_hold_s: float = Field(
+        default=0.06, ge=0.0,
+        description="a joint's peak score counts toward entering a contact only once this "
+                    "long has passed since its velocity reversed [s] (a friction spike at a "
+                    "reversal is one joint's, for tens of ms); the joint score still enters; "
+                    "0: always")
     release_free: bool = Field(
         default=True,
         description="while a contact's exit is pending (under the exit bounds, exit_s not yet "
@@ -309,7 +315,11 @@ class FreeMotionGate:
             if scale.calibrated:
                 self.settle(t)
             return GateDecision(False, score if scale.seen > 1 else 0.0, -1)
-        if not contact.in_contact and not contact.enter(index, t, score, joint):
+        enter_score = score
+        if cfg.reversal_hold_s > 0 and velocity is not None and scale.reversal is not None:
+            held = scale.reversal.reversed_within(t, cfg.reversal_hold_s)
+            enter_score = math.sqrt(max((z for z, h in zip(zsq, held) if not h), default=0.0))
+        if not contact.in_contact and not contact.enter(index, t, enter_score, joint):
             if score < cfg.learn_sigma:
                 scale.learn(steady, zsq)
             # training is judged on the plain scale (not widened at reversals)

@@ -90,6 +90,11 @@ class ReversalSpread:
         self._since = [-math.inf] * N_JOINTS
         self._bins = [k] * N_JOINTS
 
+    def reversed_within(self, t: float, within_s: float) -> list[bool]:
+        """Per joint: did it reverse (or crawl under ``slow``) less than ``within_s`` before
+        ``t`` [s], as of the last :meth:`factors_sq`."""
+        return [t - since < within_s for since in self._since]
+
     def factors_sq(self, t: float, velocity) -> list[float]:
         """Each joint's squared spread factor for a sample at ``t`` [s] with joint
         velocities ``velocity`` (6,) [rad/s; m/s] (remembered for :meth:`learn`)."""

@@ -82,3 +82,25 @@ def test_bad_reversal_settings_are_refused():
     with pytest.raises(ValidationError, match="slow_velocity"):
         GateConfig(slow_velocity=(0.01,) * 5)
     assert FreeMotionGate(GateConfig(reversal_bins_s=())).reversal is None
+
+
+def test_a_spike_over_the_learnt_spread_at_a_reversal_waits_out_the_hold():
+    """Every sixth reversal's spike is 7.5 times the others: the learnt spread (a mean square,
+    capped at ``max_reversal_factor``) does not cover it. Its peak score starts a contact unless a joint's peak waits
+    ``reversal_hold_s`` after its reversal; the yaw-pitch contact is found either way."""
+    t, r, v, turns, contact = reversing_session(spike=8.0)
+    sign = np.sign(v[:, 2])
+    big = turns[::6]
+    for k in big:
+        r[k:k + 12, 2] += 52.0 * STD[2] * sign[k]
+    late = big[big > 60 * RATE]
+    onset = np.flatnonzero(contact)[0]
+    flagged = {}
+    for hold in (0.0, 0.06):
+        out = run(FreeMotionGate(GateConfig(warmup_samples=1000, reversal_hold_s=hold)), t, r, v)
+        flagged[hold] = np.array([not d.free for d in out])
+        assert flagged[hold][onset:onset + 40].any() and flagged[hold][contact].mean() > 0.8
+    assert np.mean([flagged[0.0][k:k + 40].any() for k in late]) > 0.5
+    assert not any(flagged[0.06][k:k + 40].any() for k in late)
+    with pytest.raises(ValidationError):
+        GateConfig(reversal_hold_s=-0.1)
