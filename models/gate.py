@@ -316,7 +316,9 @@ class FreeMotionGate:
                 self.settle(t)
             return GateDecision(False, score if scale.seen > 1 else 0.0, -1)
         enter_score = score
-        if cfg.reversal_hold_s > 0 and velocity is not None and scale.reversal is not None:
+        # only a peak over the enter bound can count toward entry: the hold is judged there
+        if (score > cfg.enter_sigma and cfg.reversal_hold_s > 0 and velocity is not None
+                and scale.reversal is not None):
             held = scale.reversal.reversed_within(t, cfg.reversal_hold_s)
             enter_score = math.sqrt(max((z for z, h in zip(zsq, held) if not h), default=0.0))
         if not contact.in_contact and not contact.enter(index, t, enter_score, joint):
