@@ -1,4 +1,5 @@
-"""Self-describing checkpoints of the estimator's networks (the only file I/O of the package).
+"""Self-describing checkpoints of the estimator's networks, and the training loop's resumable
+state (:func:`save_training_state`; plain values and tensors too).
 
 A checkpoint is one ``torch.save``'d dict of plain values and tensors::
 
@@ -24,7 +25,7 @@ from typing import Any
 import torch
 from pydantic import BaseModel, ValidationError
 
-from wrenchd.models.errors import ConfigError
+from wrenchd.models.errors import ConfigError, DataError
 from wrenchd.models.estimator.correction import Corr, CorrConfig, Xfer, XferConfig
 from wrenchd.models.estimator.free_space import FreeSpaceConfig, FreeSpaceModel
 from wrenchd.models.estimator.training import TrainConfig, TrainResult
@@ -165,3 +166,33 @@ def load_checkpoint(path: str | os.PathLike) -> Checkpoint:
         model.validation_rmse = tuple(float(v) for v in rmse)
     return Checkpoint(kind, model, train, dict(payload.get("data") or {}),
                       dict(payload.get("validation") or {}), VERSION)
+
+
+def save_training_state(path: str | os.PathLike, state: dict[str, Any]) -> None:
+    """Write a training loop's state (:func:`~wrenchd.models.estimator.free_space_training.
+    train_recurrent`) to ``path`` atomically: a stop while writing leaves the last one."""
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp")
+    torch.save(state, tmp)
+    os.replace(tmp, path)
+
+
+def load_training_state(path: str | os.PathLike, fingerprint: dict[str, Any]
+                        ) -> dict[str, Any] | None:
+    """The training state saved at ``path`` (None: no file yet).
+
+    Raises:
+        DataError: the file cannot be read, or holds another run's state (its
+            ``fingerprint`` differs: recipe, model or data).
+    """
+    path = Path(path)
+    if not path.is_file():
+        return None
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:                       # noqa: BLE001 - any unreadable file
+        raise DataError(f"{path}: not a readable training checkpoint ({exc})") from None
+    if not isinstance(state, dict) or state.get("fingerprint") != fingerprint:
+        raise DataError(f"{path}: a checkpoint of another training run (recipe, model or "
+                        "data differ); remove it to start afresh")
+    return state

@@ -7,6 +7,14 @@ offset each epoch); a batch of lanes is walked window by window, the LSTM state 
 (detached) from one window to the next, as in streaming inference. Each joint group keeps the
 weights of its best validation epoch (the paper trains one network per group); training stops
 early when no group improved for ``patience`` epochs.
+
+With a ``checkpoint`` path, :func:`train_recurrent` saves its whole state after every epoch
+(weights, optimiser, schedule, best weights per group, history, patience count, the epoch
+RNG) and, when the file is there at its start, goes on from the epoch after the saved one:
+a run stopped at any point (a signal, a lost machine) and started again with the same data
+and recipe ends with the same weights as one that never stopped. A run that stopped early
+(``patience``) says so in its file, and starting it again only rebuilds the result; one that
+reached its epoch ceiling goes on if started with a higher one.
 """
 
 from __future__ import annotations
@@ -66,16 +74,41 @@ def _group_val_losses(model: GroupedTorqueModel, val: list[Segment]) -> np.ndarr
     return sq / n
 
 
+#: Format of :func:`train_recurrent`'s checkpoint file.
+CHECKPOINT_FORMAT = 1
+
+
+def _fingerprint(model: GroupedTorqueModel, train: list[Segment], val: list[Segment],
+                 config: TrainConfig) -> dict[str, Any]:
+    """What a checkpoint must match to be continued: the recipe (its epoch ceiling aside),
+    the model's parameter shapes and the data's sizes and sums."""
+    recipe = {k: v for k, v in config.model_dump().items() if k != "epochs"}
+    shapes = [list(p.shape) for p in model.state_dict().values()]
+    data = [[len(x), float(np.sum(x)), float(np.sum(y))] for x, y in list(train) + list(val)]
+    return {"format": CHECKPOINT_FORMAT, "recipe": recipe, "shapes": shapes, "data": data}
+
+
 def train_recurrent(model: GroupedTorqueModel, train: list[Segment], val: list[Segment],
                     config: TrainConfig, on_epoch: Callable[[int, float], None] | None = None,
-                    device: str | torch.device | None = "cpu"
-                    ) -> tuple[dict[str, Any], list[float]]:
+                    device: str | torch.device | None = "cpu",
+                    checkpoint: Any = None) -> tuple[dict[str, Any], list[float]]:
     """Train ``model`` in place (normalisation already set). Returns (validation, history).
 
     ``device``: where to train (None: CUDA when present); the model ends on the CPU.
+    ``checkpoint``: a file (path) to save the training state to after every epoch and to go
+    on from (module docstring; the file access is
+    :mod:`wrenchd.models.estimator.checkpoint`'s).
+
+    Raises:
+        DataError: ``checkpoint`` holds another run's state, or cannot be read.
     """
     rng = np.random.default_rng(config.seed)
     device = training_device(device)
+    from wrenchd.models.estimator.checkpoint import load_training_state, save_training_state
+
+    path = checkpoint
+    fingerprint = _fingerprint(model, train, val, config) if path is not None else None
+    saved = load_training_state(path, fingerprint) if path is not None else None
     model.to(device)
     params = [p for p in model.parameters() if p.requires_grad]
     opt = torch.optim.Adam(params, lr=config.lr, weight_decay=config.weight_decay)
@@ -86,9 +119,21 @@ def train_recurrent(model: GroupedTorqueModel, train: list[Segment], val: list[S
     groups = [list(g) for g in model.groups]
     best = [np.inf] * len(groups)
     best_state = [copy.deepcopy(net.state_dict()) for net in model.nets]
-    history, stale = [], 0
+    history, stale, first, finished = [], 0, 0, False
+    if saved is not None:
+        model.load_state_dict(saved["model"])
+        opt.load_state_dict(saved["optimizer"])
+        if sched is not None:
+            sched.load_state_dict(saved["scheduler"])
+        best, best_state = list(saved["best"]), saved["best_state"]
+        history, stale = list(saved["history"]), int(saved["stale"])
+        rng.bit_generator.state = saved["rng"]
+        torch.set_rng_state(saved["torch_rng"])
+        if saved.get("cuda_rng") is not None and device.type == "cuda":
+            torch.cuda.set_rng_state_all(saved["cuda_rng"])
+        first, finished = len(history), bool(saved["finished"])
     lane_len = config.window * config.lane_windows
-    for epoch in range(config.epochs):
+    for epoch in range(first, 0 if finished else config.epochs):
         model.train()
         xs, ys = _lanes(train, lane_len, int(rng.integers(config.window)))
         order = rng.permutation(len(xs))
@@ -122,7 +167,18 @@ def train_recurrent(model: GroupedTorqueModel, train: list[Segment], val: list[S
         if on_epoch is not None:
             on_epoch(epoch, history[-1])
         stale = 0 if improved else stale + 1
-        if config.patience is not None and stale >= config.patience:
+        finished = config.patience is not None and stale >= config.patience
+        if path is not None:
+            save_training_state(path, {"fingerprint": fingerprint, "model": model.state_dict(),
+                         "optimizer": opt.state_dict(),
+                         "scheduler": sched.state_dict() if sched is not None else None,
+                         "best": best, "best_state": best_state, "history": history,
+                         "stale": stale, "rng": rng.bit_generator.state,
+                         "torch_rng": torch.get_rng_state(),
+                         "cuda_rng": (torch.cuda.get_rng_state_all() if device.type == "cuda"
+                                      else None),
+                         "finished": finished})
+        if finished:
             break
     for net, state in zip(model.nets, best_state):
         net.load_state_dict(state)
@@ -138,11 +194,12 @@ def train_recurrent(model: GroupedTorqueModel, train: list[Segment], val: list[S
 def fit_free_space(series: Sequence[JointStates], model_config: FreeSpaceConfig | None = None,
                    config: TrainConfig | None = None, data: dict[str, Any] | None = None,
                    on_epoch: Callable[[int, float], None] | None = None,
-                   device: str | torch.device | None = "cpu") -> TrainResult:
+                   device: str | torch.device | None = "cpu",
+                   checkpoint: Any = None) -> TrainResult:
     """Train a step-1 model on free-space series (or on trocar series: the ``Troc`` model).
 
     ``device``: where to train (``None``: CUDA when present, else the CPU); the returned model
-    is on the CPU.
+    is on the CPU. ``checkpoint``: save and resume the training there (:func:`train_recurrent`).
     """
     config = config if config is not None else RECIPES["free-space"]
     train, val = split_series(series, config.val_fraction, config.max_gap_s)
@@ -151,6 +208,7 @@ def fit_free_space(series: Sequence[JointStates], model_config: FreeSpaceConfig 
         model = FreeSpaceModel(model_config)
         model.set_input_normalisation(np.concatenate([x for x, _ in train]))
         model.set_output_normalisation(np.concatenate([y for _, y in train]))
-        validation, history = train_recurrent(model, train, val, config, on_epoch, device)
+        validation, history = train_recurrent(model, train, val, config, on_epoch, device,
+                                              checkpoint)
     return TrainResult("free_space", model, config, describe_data(series, data, config),
                        validation, history)

@@ -13,6 +13,11 @@ Seal trained here on an hour of free motion each, every recurrent network to con
 paper's Corr recipe, the realistic handle, a 10 Hz causal output filter with both floors
 (:data:`wrenchd.service.studies.reproduction.PAPER`); the options below change its sizes.
 
+A run that trains step 1 (``--paper``, ``--paper-quick``) saves every recurrent network's
+training under ``OUT/checkpoints/`` after each epoch: the same command started again after a
+stop goes on where it stopped (a file of another recipe or data is refused; remove the
+folder to start afresh).
+
 Writes ``results.json`` (every number), ``force-rmse-vs-length.png`` (matplotlib, Agg) and
 ``README.md`` (the three tables, the oracle ratios, the fast Corr recipe beside the paper's).
 The experiment itself is :mod:`wrenchd.service.studies.reproduction`, the report
@@ -27,6 +32,9 @@ import json
 import sys
 import time
 from pathlib import Path
+
+#: The folder under ``--out`` that holds the training checkpoints.
+CHECKPOINTS = "checkpoints"
 
 
 def reproduce(args: argparse.Namespace) -> int:
@@ -62,7 +70,9 @@ def reproduce(args: argparse.Namespace) -> int:
                                    load_pretrained("seal") if shipped else None,
                                    pretrained_info() if shipped else None,
                                    log=lambda m: print(m, file=sys.stderr, flush=True),
-                                   device=args.device)
+                                   device=args.device,
+                                   checkpoints=(out / CHECKPOINTS if config.step1 is not None
+                                                else None))
         wall = time.perf_counter() - start
         command = "wrenchd reproduce " + " ".join(args.argv)
         data = results.to_json()

@@ -26,6 +26,8 @@ the sessions (:mod:`~wrenchd.service.studies.reproduction_sets`), the training
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from typing import Callable
 
 import numpy as np
@@ -121,8 +123,13 @@ def run_reproduction(config: ReproductionConfig, base: FreeSpaceModel | None = N
                      seal: FreeSpaceModel | None = None,
                      pretrained_info: dict[str, Pretrained] | None = None,
                      log: Callable[[str], None] = print,
-                     device: str | None = "cpu") -> ReproductionResult:
+                     device: str | None = "cpu",
+                     checkpoints: Path | None = None) -> ReproductionResult:
     """Train the per-length configurations, evaluate all six, return the results.
+
+    ``checkpoints``: a folder where every recurrent network's training (Base, Seal, Troc,
+    Xfer, per seed and length) is saved after each epoch and resumed from: the same command
+    started again after a stop goes on where it stopped.
 
     Data: the trocar training set of length ``L`` is ``L / segment_s`` simulated ``trocar``
     sessions of ``segment_s`` seconds (seeds ``seed + k``; the sets are nested, a longer set
@@ -170,14 +177,15 @@ def run_reproduction(config: ReproductionConfig, base: FreeSpaceModel | None = N
     step1_tables = ("no_contact", "contact", "step1_in_domain")
     for seed in config.training_seeds:
         if config.step1 is not None:
-            fits = train_step1(config, seed, sets.step1, device, log)
+            fits = train_step1(config, seed, sets.step1, device, log, checkpoints)
             base, seal = fits.models["Base"], fits.models["Seal"]
             collected.step1.append(fits.fits)
         collected.add_step1(score_models(scorers, {"Base": (base, None), "Seal": (seal, None)},
                                          step1_tables), config.lengths_s)
         for length in config.lengths_s:
             data = [s.joint_states for s in sets.training[length]]
-            training = train_length(config, seed, length, data, held, base, seal, device)
+            training = train_length(config, seed, length, data, held, base, seal, device,
+                                    checkpoints)
             longest = length == config.lengths_s[-1]    # no-contact table: the longest set
             scores = score_models(
                 scorers, {k: (t.step1, t.step2) for k, t in training.configs.items()},

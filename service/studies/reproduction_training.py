@@ -9,6 +9,8 @@ training series; Corr trains on the CPU.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import time
 from typing import Any, Callable
 
@@ -44,18 +46,27 @@ class Step1Fits(BaseModel):
     fits: dict[str, Step1Fit]
 
 
+def _checkpoint(folder: Path | None, name: str) -> Path | None:
+    """``folder / name`` (the folder made), or None without a folder."""
+    if folder is None:
+        return None
+    folder.mkdir(parents=True, exist_ok=True)
+    return folder / name
+
+
 def train_step1(config: ReproductionConfig, seed: int,
                 sets: dict[str, tuple[list[Session], list[Session]]], device: str | None,
-                log: Callable[[str], None]) -> Step1Fits:
+                log: Callable[[str], None], checkpoints: Path | None = None) -> Step1Fits:
     """Base and Seal trained with training seed ``seed`` on their free-motion sets,
-    early-stopped on the held-out sessions."""
+    early-stopped on the held-out sessions (resumed from ``checkpoints`` when given)."""
     st = config.step1
     models, fits = {}, {}
     for name, (train, held) in sets.items():
         rec = seeded_recipe(st.recipe, st.overrides, seed)
         start = time.perf_counter()
         res = fit_step1_held_out([s.joint_states for s in train],
-                                 [s.joint_states for s in held], rec, device=device)
+                                 [s.joint_states for s in held], rec, device=device,
+                                 checkpoint=_checkpoint(checkpoints, f"{name}-seed{seed}.pt"))
         seconds = time.perf_counter() - start
         models[name] = res.model
         fits[name] = Step1Fit(train_seconds=round(seconds, 2), score=res.validation["score"],
@@ -88,10 +99,11 @@ class LengthTraining(BaseModel):
 
 def train_length(config: ReproductionConfig, seed: int, length_s: float,
                  data: list[JointStates], held: list[JointStates], base: FreeSpaceModel,
-                 seal: FreeSpaceModel, device: str | None) -> LengthTraining:
+                 seal: FreeSpaceModel, device: str | None,
+                 checkpoints: Path | None = None) -> LengthTraining:
     """Troc, Base+Corr, Seal+Corr and Seal+Xfer trained on ``data`` (the trocar set of
     ``length_s``) with training seed ``seed``; Troc and Xfer early-stop on ``held`` when
-    given."""
+    given, and then resume from ``checkpoints`` when given."""
     rec_troc = seeded_recipe(config.troc_recipe, config.recurrent_overrides, seed)
     rec_xfer = seeded_recipe(config.xfer_recipe, config.recurrent_overrides, seed)
     rec_corr = seeded_recipe(config.corr_recipe, config.corr_overrides, seed)
@@ -100,12 +112,16 @@ def train_length(config: ReproductionConfig, seed: int, length_s: float,
         start = time.perf_counter()
         step2: Corr | Xfer | None = None
         if name == "Troc":
-            res = (fit_step1_held_out(data, held, rec_troc, device=device) if held
-                   else fit_free_space(data, config=rec_troc, device=device))
+            res = (fit_step1_held_out(data, held, rec_troc, device=device,
+                                      checkpoint=_checkpoint(
+                                          checkpoints, f"Troc-{length_s:g}s-seed{seed}.pt"))
+                   if held else fit_free_space(data, config=rec_troc, device=device))
             step1 = res.model
         elif name == "Seal+Xfer":
-            res = (fit_xfer_held_out(seal, data, held, rec_xfer, device=device) if held
-                   else fit_xfer(seal, data, config=rec_xfer, device=device))
+            res = (fit_xfer_held_out(seal, data, held, rec_xfer, device=device,
+                                     checkpoint=_checkpoint(
+                                         checkpoints, f"Xfer-{length_s:g}s-seed{seed}.pt"))
+                   if held else fit_xfer(seal, data, config=rec_xfer, device=device))
             step1, step2 = seal, res.model
         else:
             step1 = base if name == "Base+Corr" else seal

@@ -165,13 +165,16 @@ def _held_out(series, validation, config):
 
 
 def fit_step1_held_out(series, validation, config, model_config=None,
-                       data: dict[str, Any] | None = None, on_epoch=None, device="cpu"):
+                       data: dict[str, Any] | None = None, on_epoch=None, device="cpu",
+                       checkpoint=None):
     """A step-1 network (``Base``, ``Seal`` or ``Troc``) trained on every sample of
     ``series`` and early-stopped on the held-out ``validation`` sessions.
 
     Args:
         series, validation: JointStates of free motion (no contact).
         config: the recipe (``epochs``: the ceiling; ``patience``: the early stop).
+        checkpoint: a file to save the training to after every epoch and resume it from
+            (:func:`~wrenchd.models.estimator.free_space_training.train_recurrent`).
     Returns:
         a ``TrainResult`` of kind ``free_space``; its validation scores the held-out sessions.
     """
@@ -188,16 +191,19 @@ def fit_step1_held_out(series, validation, config, model_config=None,
         model = FreeSpaceModel(model_config)
         model.set_input_normalisation(np.concatenate([x for x, _ in train]))
         model.set_output_normalisation(np.concatenate([y for _, y in train]))
-        report, history = train_recurrent(model, train, val, config, on_epoch, device)
+        report, history = train_recurrent(model, train, val, config, on_epoch, device,
+                                          checkpoint)
     described = {**describe_data(series, data, config), "val_fraction": None,
                  "held_out_series": len(validation)}
     return TrainResult("free_space", model, config, described, report, history)
 
 
 def fit_xfer_held_out(base, series, validation, config, xfer_config=None,
-                      data: dict[str, Any] | None = None, on_epoch=None, device="cpu"):
+                      data: dict[str, Any] | None = None, on_epoch=None, device="cpu",
+                      checkpoint=None):
     """``Xfer``'s new layers on the frozen ``base`` trained on every sample of ``series``,
-    early-stopped on the held-out ``validation`` sessions (trocar motion, no contact)."""
+    early-stopped on the held-out ``validation`` sessions (trocar motion, no contact);
+    ``checkpoint`` as in :func:`fit_step1_held_out`."""
     import numpy as np
     import torch
 
@@ -210,7 +216,8 @@ def fit_xfer_held_out(base, series, validation, config, xfer_config=None,
         torch.manual_seed(config.seed)
         model = Xfer(xfer_config, base=base)
         model.set_output_normalisation(np.concatenate([y for _, y in train]))
-        report, history = train_recurrent(model, train, val, config, on_epoch, device)
+        report, history = train_recurrent(model, train, val, config, on_epoch, device,
+                                          checkpoint)
     described = {**describe_data(series, data, config), "val_fraction": None,
                  "held_out_series": len(validation)}
     return TrainResult("xfer", model, config, described, report, history)

@@ -92,3 +92,20 @@ def test_paper_quick_records_patients_trials_seeds_intervals_and_both_floors(tmp
                   "Table 3: contact RMSE", "Step 1 in domain", "## Targets",
                   "oracle (filtered)", "sensor: force RMSE", "before the filter"):
         assert title in text
+    # every recurrent network's training was saved; the same command again resumes from the
+    # files (each at its end) and scores the same networks
+    saved = sorted(p.name for p in (out / "checkpoints").glob("*.pt"))
+    lengths = [f"{float(x):g}s-" for x in r["contact"]["Troc"]]
+    assert saved == sorted([f"{n}-seed{k}.pt" for k in (0, 1) for n in ("Base", "Seal")]
+                           + [f"{n}-{tail}seed{k}.pt" for k in (0, 1) for n in ("Troc", "Xfer")
+                              for tail in lengths])
+    again = subprocess.run([sys.executable, "-m", "wrenchd", "reproduce", "--paper-quick",
+                            "--out", str(out), "--threads", "1"], capture_output=True,
+                           text=True, env={**os.environ, "OMP_NUM_THREADS": "1"}, timeout=300)
+    assert again.returncode == 0, again.stderr
+    r2 = json.loads((out / "results.json").read_text())
+    assert [s["Base"]["score"] for s in r2["step1"]["per_seed"]] == [
+        s["Base"]["score"] for s in r["step1"]["per_seed"]]
+    for name in ("Troc", "Seal+Xfer"):
+        assert (r2["contact"][name]["40.0"]["scores"]["truth"]["rmse"]["force"]
+                == r["contact"][name]["40.0"]["scores"]["truth"]["rmse"]["force"])
