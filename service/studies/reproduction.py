@@ -175,13 +175,19 @@ def run_reproduction(config: ReproductionConfig, base: FreeSpaceModel | None = N
     held = [s.joint_states for s in sets.validation]
     collected = Collected()
     step1_tables = ("no_contact", "contact", "step1_in_domain")
+    once = config.step1 is not None and config.step1.one_seed
     for seed in config.training_seeds:
-        if config.step1 is not None:
+        # step 1 trained per seed, or once (the first seed's, served under every seed): then
+        # scored once too, so that its intervals do not count one network as several
+        first = seed == config.training_seeds[0]
+        if config.step1 is not None and (first or not once):
             fits = train_step1(config, seed, sets.step1, device, log, checkpoints)
             base, seal = fits.models["Base"], fits.models["Seal"]
             collected.step1.append(fits.fits)
-        collected.add_step1(score_models(scorers, {"Base": (base, None), "Seal": (seal, None)},
-                                         step1_tables), config.lengths_s)
+        if first or not once:
+            collected.add_step1(score_models(scorers, {"Base": (base, None),
+                                                       "Seal": (seal, None)},
+                                             step1_tables), config.lengths_s)
         for length in config.lengths_s:
             data = [s.joint_states for s in sets.training[length]]
             training = train_length(config, seed, length, data, held, base, seal, device,

@@ -33,6 +33,11 @@ class Step1Training(BaseModel):
     recipe: str = Field(default="free-space", description="recipe (the paper's: 1000 epochs)")
     overrides: dict[str, Any] = Field(default={}, description="recipe fields replaced")
     seed: int = Field(default=100000, description="first session seed (Seal: + 10000)")
+    one_seed: bool = Field(
+        default=False,
+        description="train Base and Seal once, with the first training seed, and serve them "
+                    "under every seed (step 1 costs most of the run); their rows then have "
+                    "intervals over trials only")
 
     @model_validator(mode="after")
     def _recipe(self) -> Step1Training:
@@ -141,7 +146,7 @@ PAPER = ReproductionConfig(
     no_contact_trials=92, contact_trials=12, recurrent_overrides={}, corr_recipe="corr",
     fast_vs_paper=False, training_seeds=(0, 1, 2), validation_sessions=4,
     patient_variation=True, handle_nm_per_rad=REALISTIC_HANDLE_NM_PER_RAD,
-    sensor_on_no_contact=True, output_filter_hz=10.0, step1=Step1Training(),
+    sensor_on_no_contact=True, output_filter_hz=10.0, step1=Step1Training(one_seed=True),
     step1_test_trials=20)
 
 #: The paper-scale run's pipeline at toy sizes (seconds), for the tests.
@@ -150,7 +155,7 @@ PAPER_QUICK = PAPER.model_copy(update=dict(
     contact_trials=2, contact_trial_s=20.0, training_seeds=(0, 1), validation_sessions=1,
     recurrent_overrides={"epochs": 1, "window": 20, "lane_windows": 2, "batch_size": 8},
     corr_recipe="corr-fast", corr_overrides={"epochs": 2},
-    step1=Step1Training(duration_s=20.0, session_s=10.0, val_sessions=1,
+    step1=Step1Training(duration_s=20.0, session_s=10.0, val_sessions=1, one_seed=True,
                         overrides={"epochs": 2, "window": 20, "lane_windows": 2,
                                    "batch_size": 8}),
     step1_test_trials=2, step1_test_s=8.0))

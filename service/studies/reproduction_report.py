@@ -210,7 +210,10 @@ def _setup(results: ReproductionResult) -> list[str]:
             f"{cfg.validation_sessions} held-out trocar sessions."
             if cfg.validation_sessions else "the last part of each training series."),
         f"- Corr: recipe `{cfg.corr_recipe}` (up to {rec['corr'].epochs} epochs).",
-        ("- Base and Seal: trained here per seed on "
+        ("- Base and Seal: trained here "
+         + ("once, with the first seed, and served under every seed (step 1 is most of the "
+            "run's compute; their cells are intervals over trials), on "
+            if cfg.step1 is not None and cfg.step1.one_seed else "per seed on ")
          + ", ".join(f"{k} {v:g} s" for k, v in results.step1.data_s.items())
          + f" of free motion, early-stopped on {results.step1.held_out_sessions} "
          f"held-out sessions (up to {results.step1.recipe.epochs} epochs)."

@@ -59,18 +59,20 @@ def test_paper_quick_records_patients_trials_seeds_intervals_and_both_floors(tmp
     assert r["patient_variation"] is True and r["patient_draws_disjoint"] is True
     assert r["trials"]["no_contact"] == 3 and r["trials"]["contact"] == 2
     assert r["seeds"]["training"] == [0, 1]
-    assert len(r["step1"]["per_seed"]) == 2 and r["step1"]["held_out_sessions"] == 1
+    # step 1 trained once (the first seed's networks serve under both seeds)
+    assert len(r["step1"]["per_seed"]) == 1 and r["step1"]["held_out_sessions"] == 1
     assert r["output_filter"]["cutoff_hz"] == 10.0
     raw, filt = r["oracle"]["contact"]["force_rmse"], r["oracle_filtered"]["contact"]["force_rmse"]
     assert 0.0 < filt < raw
     for name in CONFIGS:
         cell = r["contact"][name]["40.0"]
-        assert cell["seeds"] == 2 and cell["trials"] == 2
+        seeds = 1 if name in ("Base", "Seal") else 2
+        assert cell["seeds"] == seeds and cell["trials"] == 2, name
         for ref in ("truth", "sensor"):
             for metric in ("rmse", "contact_rmse", "peak"):
                 c = cell["scores"][ref][metric]
                 assert c["force_ci95"][0] <= c["force"] <= c["force_ci95"][1], (name, ref)
-                assert len(c["per_seed_force"]) == 2
+                assert len(c["per_seed_force"]) == seeds
         # the RMSE over contact samples is an RMSE over fewer samples than the whole trial's,
         # the peak error at least the RMSE
         truth = cell["scores"]["truth"]
@@ -96,7 +98,7 @@ def test_paper_quick_records_patients_trials_seeds_intervals_and_both_floors(tmp
     # files (each at its end) and scores the same networks
     saved = sorted(p.name for p in (out / "checkpoints").glob("*.pt"))
     lengths = [f"{float(x):g}s-" for x in r["contact"]["Troc"]]
-    assert saved == sorted([f"{n}-seed{k}.pt" for k in (0, 1) for n in ("Base", "Seal")]
+    assert saved == sorted([f"{n}-seed0.pt" for n in ("Base", "Seal")]
                            + [f"{n}-{tail}seed{k}.pt" for k in (0, 1) for n in ("Troc", "Xfer")
                               for tail in lengths])
     again = subprocess.run([sys.executable, "-m", "wrenchd", "reproduce", "--paper-quick",
