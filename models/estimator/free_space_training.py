@@ -26,6 +26,7 @@ import numpy as np
 import torch
 
 from wrenchd.models.errors import DataError
+from wrenchd.models.estimator.checkpoint import load_training_state, save_training_state
 from wrenchd.models.estimator.free_space import FreeSpaceConfig, FreeSpaceModel, GroupedTorqueModel
 from wrenchd.models.estimator.training import (
     RECIPES,
@@ -104,11 +105,8 @@ def train_recurrent(model: GroupedTorqueModel, train: list[Segment], val: list[S
     """
     rng = np.random.default_rng(config.seed)
     device = training_device(device)
-    from wrenchd.models.estimator.checkpoint import load_training_state, save_training_state
-
-    path = checkpoint
-    fingerprint = _fingerprint(model, train, val, config) if path is not None else None
-    saved = load_training_state(path, fingerprint) if path is not None else None
+    fingerprint = _fingerprint(model, train, val, config) if checkpoint is not None else None
+    saved = load_training_state(checkpoint, fingerprint) if checkpoint is not None else None
     model.to(device)
     params = [p for p in model.parameters() if p.requires_grad]
     opt = torch.optim.Adam(params, lr=config.lr, weight_decay=config.weight_decay)
@@ -168,16 +166,15 @@ def train_recurrent(model: GroupedTorqueModel, train: list[Segment], val: list[S
             on_epoch(epoch, history[-1])
         stale = 0 if improved else stale + 1
         finished = config.patience is not None and stale >= config.patience
-        if path is not None:
-            save_training_state(path, {"fingerprint": fingerprint, "model": model.state_dict(),
-                         "optimizer": opt.state_dict(),
-                         "scheduler": sched.state_dict() if sched is not None else None,
-                         "best": best, "best_state": best_state, "history": history,
-                         "stale": stale, "rng": rng.bit_generator.state,
-                         "torch_rng": torch.get_rng_state(),
-                         "cuda_rng": (torch.cuda.get_rng_state_all() if device.type == "cuda"
-                                      else None),
-                         "finished": finished})
+        if checkpoint is not None:
+            save_training_state(checkpoint, {
+                "fingerprint": fingerprint, "model": model.state_dict(),
+                "optimizer": opt.state_dict(),
+                "scheduler": sched.state_dict() if sched is not None else None,
+                "best": best, "best_state": best_state, "history": history, "stale": stale,
+                "rng": rng.bit_generator.state, "torch_rng": torch.get_rng_state(),
+                "cuda_rng": torch.cuda.get_rng_state_all() if device.type == "cuda" else None,
+                "finished": finished})
         if finished:
             break
     for net, state in zip(model.nets, best_state):
