@@ -249,9 +249,9 @@ def replay_metrics(r: ReplayResult, session: Session) -> dict[str, Any]:
     m["gate"] = {"precision": tp / int(est_contact.sum()) if est_contact.any() else None,
                  "recall": tp / int(true_contact.sum()) if true_contact.any() else None,
                  "after_s": t0 + calib}
-    m["gate_episodes"] = episode_gate_scores(
-        r.t, contact, np.linalg.norm(truth.external_wrench[r.sample, :3], axis=1), ~r.free,
-        after)
+    true_force = np.linalg.norm(truth.external_wrench[r.sample, :3], axis=1)
+    m["gate_episodes"] = episode_gate_scores(r.t, contact, true_force, ~r.free, after)
+    ef = force_error_n(r, truth)
     if len(r.offered_t):
         pos = np.clip(np.searchsorted(session.joint_states.t, r.offered_t), 0,
                       len(truth) - 1)
@@ -264,15 +264,14 @@ def replay_metrics(r: ReplayResult, session: Session) -> dict[str, Any]:
                                   bad_mask[r.offered_t >= t0 + calib].sum()),
                               "episodes_after_calibration": offered_contact_episodes(
                                   r, truth, pos[bad_mask & (r.offered_t >= t0 + calib)],
-                                  contact)}
+                                  contact, ef)}
     else:
         m["contamination"] = {"offered": 0, "in_contact": 0, "fraction": None,
-                              "in_contact_after_calibration": 0}
-    true_force = np.linalg.norm(truth.external_wrench[r.sample, :3], axis=1)
+                              "in_contact_after_calibration": 0,
+                              "episodes_after_calibration": []}
     m["contacts_found"] = contact_detection(r.t, ~r.free, true_force, contact, t0 + calib)
     m["gate_detector"] = detector_scores(r.t, contact, true_force, ~r.free, after,
                                          [at for _, at, _ in drift_onsets(session)])
-    ef = force_error_n(r, truth)
     m["drifts"] = [{"id": name, "end_s": end, **_recovery(r.t, ef, ~contact, start)}
                    for name, start, end in drift_onsets(session)]
     return m
@@ -284,29 +283,27 @@ BEFORE_EPISODE_S = 10.0
 
 
 def offered_contact_episodes(r: ReplayResult, truth, offered: np.ndarray,
-                             contact: np.ndarray) -> list[dict[str, Any]]:
+                             contact: np.ndarray, ef: np.ndarray) -> list[dict[str, Any]]:
     """The true contact episodes that samples offered to training fell in: for each, its start
     [s], the samples offered, its peak true tip force [N] and the free-motion tip force error
     RMS over the :data:`BEFORE_EPISODE_S` before it [N] (how far the estimate strayed when
     nothing touched: a contact much weaker than that cannot be told from free motion).
 
     ``offered``: session sample indices of the offered samples in contact; ``contact``: the
-    truth's contact flag per replayed sample."""
+    truth's contact flag per replayed sample; ``ef``: the force error per replayed sample
+    (:func:`force_error_n`)."""
     if not len(offered):
         return []
-    in_c = truth.in_contact
-    episode = np.cumsum(np.diff(in_c.astype(np.int8), prepend=np.int8(0)) == 1)
-    force = np.linalg.norm(truth.external_wrench[:, :3], axis=1)
-    ef = force_error_n(r, truth)
+    starts, ends = true_runs(truth.in_contact)
+    run = np.searchsorted(starts, offered, side="right") - 1    # the run each one is in
     out = []
-    for ep, n in zip(*np.unique(episode[offered], return_counts=True)):
-        members = np.flatnonzero((episode == ep) & in_c)
-        start = members[0]
+    for k, n in zip(*np.unique(run, return_counts=True)):
+        start, end = starts[k], ends[k]
         # the replayed sample at (or first after) the episode's start; replay keeps order
         t_start = float(r.t[min(int(np.searchsorted(r.sample, start)), len(r.t) - 1)])
         before = (r.t >= t_start - BEFORE_EPISODE_S) & (r.t < t_start) & ~contact
-        out.append({"start_s": round(t_start, 3), "offered": int(n),
-                    "peak_N": float(force[members].max()),
+        peak = np.linalg.norm(truth.external_wrench[start:end, :3], axis=1).max()
+        out.append({"start_s": round(t_start, 3), "offered": int(n), "peak_N": float(peak),
                     "free_error_before_N": (float(np.sqrt(np.mean(ef[before] ** 2)))
                                             if before.any() else None)})
     return out
