@@ -98,7 +98,9 @@ def train_recurrent(model: GroupedTorqueModel, train: list[Segment], val: list[S
     ``device``: where to train (None: CUDA when present); the model ends on the CPU.
     ``checkpoint``: a file (path) to save the training state to after every epoch and to go
     on from (module docstring; the file access is
-    :mod:`wrenchd.models.estimator.checkpoint`'s).
+    :mod:`wrenchd.models.estimator.checkpoint`'s). ``on_epoch(epoch, score)`` runs once the
+    epoch is saved: an exception it raises (a stop request) ends the training there, and the
+    checkpoint goes on from the next epoch.
 
     Raises:
         DataError: ``checkpoint`` holds another run's state, or cannot be read.
@@ -162,8 +164,6 @@ def train_recurrent(model: GroupedTorqueModel, train: list[Segment], val: list[S
                 best[k], improved = loss_g, True
                 best_state[k] = copy.deepcopy(model.nets[k].state_dict())
         history.append(float(np.sqrt(per_joint).mean()))
-        if on_epoch is not None:
-            on_epoch(epoch, history[-1])
         stale = 0 if improved else stale + 1
         finished = config.patience is not None and stale >= config.patience
         if checkpoint is not None:
@@ -175,6 +175,8 @@ def train_recurrent(model: GroupedTorqueModel, train: list[Segment], val: list[S
                 "rng": rng.bit_generator.state, "torch_rng": torch.get_rng_state(),
                 "cuda_rng": torch.cuda.get_rng_state_all() if device.type == "cuda" else None,
                 "finished": finished})
+        if on_epoch is not None:        # after the save: a callback that raises (a stop
+            on_epoch(epoch, history[-1])  # request) leaves the epoch it saw resumable
         if finished:
             break
     for net, state in zip(model.nets, best_state):

@@ -25,6 +25,7 @@ from wrenchd.models.estimator.free_space_training import fit_free_space
 from wrenchd.models.estimator.training import TrainConfig, recipe
 from wrenchd.models.estimator.wrench import WrenchMap
 from wrenchd.models.series import JointStates, Session
+from wrenchd.service.runtime import stopping
 from wrenchd.service.studies.reproduction_config import TRAINED, ReproductionConfig
 from wrenchd.service.studies.reproduction_results import FastVsPaper, Fit, RecipeRun, Step1Fit
 from wrenchd.service.studies.reproduction_scoring import predicted_torques, wrench_rmse
@@ -44,6 +45,12 @@ class Step1Fits(BaseModel):
 
     models: dict[str, FreeSpaceModel]
     fits: dict[str, Step1Fit]
+
+
+def stop_between_epochs(_epoch: int, _score: float) -> None:
+    """After each saved epoch: end the training if the command was asked to stop (SIGINT,
+    SIGTERM); the checkpoint goes on from the next epoch."""
+    stopping.check()
 
 
 def _checkpoint(folder: Path | None, name: str) -> Path | None:
@@ -66,6 +73,7 @@ def train_step1(config: ReproductionConfig, seed: int,
         start = time.perf_counter()
         res = fit_step1_held_out([s.joint_states for s in train],
                                  [s.joint_states for s in held], rec, device=device,
+                                 on_epoch=stop_between_epochs,
                                  checkpoint=_checkpoint(checkpoints, f"{name}-seed{seed}.pt"))
         seconds = time.perf_counter() - start
         models[name] = res.model
@@ -113,13 +121,13 @@ def train_length(config: ReproductionConfig, seed: int, length_s: float,
         step2: Corr | Xfer | None = None
         if name == "Troc":
             res = (fit_step1_held_out(data, held, rec_troc, device=device,
-                                      checkpoint=_checkpoint(
+                                      on_epoch=stop_between_epochs, checkpoint=_checkpoint(
                                           checkpoints, f"Troc-{length_s:g}s-seed{seed}.pt"))
                    if held else fit_free_space(data, config=rec_troc, device=device))
             step1 = res.model
         elif name == "Seal+Xfer":
             res = (fit_xfer_held_out(seal, data, held, rec_xfer, device=device,
-                                     checkpoint=_checkpoint(
+                                     on_epoch=stop_between_epochs, checkpoint=_checkpoint(
                                          checkpoints, f"Xfer-{length_s:g}s-seed{seed}.pt"))
                    if held else fit_xfer(seal, data, config=rec_xfer, device=device))
             step1, step2 = seal, res.model

@@ -110,3 +110,53 @@ def test_a_killed_training_process_resumes_where_it_stopped(series, tmp_path):
     straight = fit_free_space(series, SMALL, _recipe(6))
     assert resumed.history == straight.history
     _same_weights(resumed, straight)
+
+
+def test_sigterm_stops_a_training_after_its_saved_epoch_and_it_resumes(series, tmp_path):
+    """SIGTERM to a training run as the paper-scale reproduction runs it (the command's stop
+    request, checked after each saved epoch): it exits with 128 + 15 at once, the checkpoint
+    holds every epoch it began, and training again from the file ends as an unbroken run."""
+    torch.set_num_threads(1)
+    path = tmp_path / "step1.pt"
+    marker = tmp_path / "epochs.txt"
+    script = textwrap.dedent(f"""
+        import sys, time, torch
+        torch.set_num_threads(1)
+        from wrenchd.adapters.sim.scenarios import run_scenario
+        from wrenchd.models.estimator.free_space import FreeSpaceConfig
+        from wrenchd.models.estimator.free_space_training import fit_free_space
+        from wrenchd.models.estimator.training import recipe
+        from wrenchd.service.runtime.stopping import StopSignals, Stopped
+        from wrenchd.service.studies.reproduction_training import stop_between_epochs
+        js = run_scenario("free-space", 60.0, 1).joint_states.slice(0, 2000)
+        cfg = recipe("free-space", epochs=40, window=20, lane_windows=2, batch_size=8, seed=7,
+                     lr_halving_epochs=2, patience=None)
+        def on_epoch(epoch, loss):
+            open({str(marker)!r}, "a").write(f"{{epoch}}\\n")
+            time.sleep(0.3)
+            stop_between_epochs(epoch, loss)
+        try:
+            with StopSignals():
+                fit_free_space([js], FreeSpaceConfig(hidden_size=8, seal_hidden_size=8), cfg,
+                               on_epoch=on_epoch, checkpoint={str(path)!r})
+        except Stopped as stop:
+            sys.exit(128 + stop.signum)
+        """)
+    proc = subprocess.Popen([sys.executable, "-c", script])
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline:
+        if marker.is_file() and len(marker.read_text().split()) >= 2:
+            break
+        if proc.poll() is not None:
+            pytest.fail(f"the training process ended early ({proc.returncode})")
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGTERM)
+    proc.wait(timeout=30)
+    assert proc.returncode == 128 + signal.SIGTERM
+    done = len(marker.read_text().split())
+    assert 2 <= done < 40
+    resumed = fit_free_space(series, SMALL, _recipe(done + 2), checkpoint=path)
+    straight = fit_free_space(series, SMALL, _recipe(done + 2))
+    assert len(resumed.history) == done + 2
+    assert resumed.history == straight.history
+    _same_weights(resumed, straight)
