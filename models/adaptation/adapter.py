@@ -28,9 +28,10 @@ import torch
 
 from wrenchd.models.body_wall_tracker import (WALL_JOINTS, BodyWallTracker, wall_regressors)
 from wrenchd.models.estimator.corr_finetune import CorrFineTuner
-from wrenchd.models.estimator.correction import Corr, CorrConfig, CorrKernel, zero_corr
+from wrenchd.models.estimator.correction import Corr, CorrKernel, zero_corr
+from wrenchd.models.estimator.trocar_physics import fit_trocar, trocar_torque
 from wrenchd.models.adaptation.buffer import RowRing
-from wrenchd.models.adaptation.config import AdaptationConfig, RoundResult
+from wrenchd.models.adaptation.config import AdaptationConfig, RoundResult, corr_config_of
 from wrenchd.models.series import N_JOINTS
 
 
@@ -84,7 +85,7 @@ class Adapter:
                  normalisation: dict[str, np.ndarray] | None = None) -> None:
         self.config = c = config if config is not None else AdaptationConfig()
         self.normalisation = normalisation
-        self.corr_config = CorrConfig(window=c.window, hidden_size=c.hidden_size)
+        self.corr_config = corr_config_of(c)
         self.width = c.window * 12 + 2 * N_JOINTS
         self.recent = RowRing(c.recent_size, self.width)
         self.reservoir = RowRing(max(c.reservoir_size, 1), self.width)
@@ -104,6 +105,7 @@ class Adapter:
         # is that change's, not a new one
         self._change_until = -np.inf
         self._next_round: float | None = None
+        self._trocar_until: float | None = None   # the wall's physics is fitted until then
         self.rounds = 0
         self.accepted = 0
         self.body_wall = BodyWallTracker(c.body_wall)
@@ -291,23 +293,31 @@ class Adapter:
         y = torch.from_numpy(rows[:, w * 12 + N_JOINTS:])
         return x, s, y
 
-    def _scaling(self, corr: Corr) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _scaling(self, corr: Corr, theta: np.ndarray | None = None) -> tuple:
         """``shift``, ``scale`` of a row's network input (window, step-1 torque) and the torque
-        scale, as float32 arrays: the normalisation of ``corr`` applied to buffer rows."""
+        scale, as float32 arrays: the normalisation of ``corr`` applied to buffer rows; then
+        the trocar physics' parameters (float64; ``theta``, else ``corr``'s; None without
+        them), whose torque the net's target leaves out."""
         w = self.config.window
         shift = np.concatenate([np.tile(corr.in_mean.numpy(), w), corr.tau_mean.numpy()])
         scale = np.concatenate([np.tile(corr.in_std.numpy(), w), corr.tau_std.numpy()])
+        if theta is None and corr.config.trocar_physics:
+            theta = corr.trocar_theta.double().numpy().copy()
         return (shift.astype(np.float32), scale.astype(np.float32),
-                corr.tau_std.numpy().astype(np.float32))
+                corr.tau_std.numpy().astype(np.float32), theta)
 
     def _net_io(self, rows: np.ndarray, scaling, tensors: bool = True):
         """Rows -> (normalised network input, target correction in torque-std units): the same
-        numbers as ``Corr.normalised_input`` and ``(measured - step1) / tau_std``, on NumPy;
+        numbers as ``Corr.normalised_input`` and ``(measured - step1 - trocar) / tau_std``
+        (``trocar``: the physics of the scaling's parameters, when it has them), on NumPy;
         torch tensors unless ``tensors`` is False."""
-        shift, scale, tau_std = scaling
+        shift, scale, tau_std, theta = scaling
         k = self.config.window * 12 + N_JOINTS
         inp = (rows[:, :k] - shift) / scale
-        target = (rows[:, k:] - rows[:, k - N_JOINTS:k]) / tau_std
+        residual = rows[:, k:] - rows[:, k - N_JOINTS:k]
+        if theta is not None:
+            residual = residual - trocar_torque(*self._positions(rows), theta)
+        target = (residual / tau_std).astype(np.float32)
         if not tensors:
             return inp, target
         return torch.from_numpy(inp), torch.from_numpy(target)
@@ -321,6 +331,28 @@ class Adapter:
         with torch.no_grad():
             rmse = torch.sqrt(torch.mean((corr.net(inp) - target) ** 2, dim=0))
         return float(rmse.mean())
+
+    def _refit_trocar(self, tuner: CorrFineTuner, scaling: tuple) -> tuple:
+        """The trocar physics re-fitted on the training rows (recent ring and reservoir, each
+        row alike: the physics is one model of the whole workspace, and weighting the recent
+        ring as the mini-batches do made it follow local motion and extrapolate worse) to
+        what the tuner's net leaves of their step-1 residual, shrunk towards the current
+        parameters (``trocar_shrink``); returns the scaling with the new parameters, the
+        rings' targets renormalised to it."""
+        shift, scale, tau_std, theta = scaling
+        parts = [(ring.rows[:ring.n], ring.inp[:ring.n]) for ring in (self.recent, self.reservoir)
+                 if ring.n]
+        rows = np.concatenate([p[0] for p in parts])
+        net = np.concatenate([tuner.forward(p[1]) for p in parts]).astype(np.float64)
+        k = self.config.window * 12 + N_JOINTS
+        residual = (rows[:, k:].astype(np.float64) - rows[:, k - N_JOINTS:k]
+                    - net * tau_std.astype(np.float64))
+        theta = fit_trocar(*self._positions(rows), residual, theta, self.config.trocar_shrink)
+        theta = theta.astype(np.float32).astype(np.float64)     # as the net's buffer holds it
+        fitted = (shift, scale, tau_std, theta)
+        for ring in (self.recent, self.reservoir, self._holdout):
+            ring.normalise(fitted, self._net_rows)
+        return fitted
 
     def due(self, t: float) -> bool:
         """Whether a round is due at time ``t`` [s] (and enough data is there)."""
@@ -370,7 +402,9 @@ class Adapter:
         rings then keep their normalised rows)."""
         scaling = self._scaling(self.corr)
         cached = self._scaling_cache
-        if cached is not None and all(np.array_equal(a, b) for a, b in zip(scaling, cached)):
+        if cached is not None and all(a is b or (a is not None and b is not None
+                                                 and np.array_equal(a, b))
+                                      for a, b in zip(scaling, cached)):
             return cached
         self._scaling_cache = scaling
         return scaling
@@ -398,10 +432,11 @@ class Adapter:
         b2[...] = solved[-1]
 
     def round(self, t: float) -> RoundResult | None:
-        """One round at ``t`` [s] if due, else None: ``round_steps`` Adam steps on batches
-        drawn ``recent_fraction`` from the recent ring, the rest from the reservoir, then
-        :meth:`_refit_output`; the candidate serves, as the next version, only if its held-out
-        error is lower by ``min_improvement``."""
+        """One round at ``t`` [s] if due, else None: with ``trocar_physics`` and within
+        ``trocar_fit_s`` of the first round, :meth:`_refit_trocar` first; ``round_steps`` Adam
+        steps on batches drawn ``recent_fraction`` from the recent ring, the rest from the
+        reservoir, then :meth:`_refit_output`; the candidate serves, as the next version, only
+        if its held-out error is lower by ``min_improvement``."""
         if not self.due(t):
             return None
         c = self.config
@@ -425,6 +460,14 @@ class Adapter:
             order = self._holdout.order()
             h_inp, h_target = self._holdout.inp[order], self._holdout.target[order]
             before = _rmse_mean(tuner.forward(h_inp), h_target)
+        fitted = scaling
+        if self._trocar_until is None:
+            self._trocar_until = t + (np.inf if c.trocar_fit_s is None else c.trocar_fit_s)
+        if scaling[3] is not None and t < self._trocar_until:
+            # the physics first, against the serving net; the net then learns what is left
+            fitted = self._refit_trocar(tuner, scaling)
+            if n_holdout:
+                h_target = self._holdout.target[order]
         for _ in range(c.round_steps):
             tuner.step(*self._batch(c.batch_size), with_loss=False)
         if c.refit_shrink > 0:
@@ -441,6 +484,9 @@ class Adapter:
         if accepted:
             candidate = copy.deepcopy(self.corr)
             tuner.write_to(candidate.net)
+            if fitted[3] is not None:
+                candidate.trocar_theta.copy_(torch.from_numpy(fitted[3]))
+                self._scaling_cache = fitted       # the rings hold this scaling's targets
             self.corr = candidate.eval()
             self.version += 1
             self.accepted += 1

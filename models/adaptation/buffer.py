@@ -54,11 +54,12 @@ class RowRing:
 
     def normalise(self, scaling: tuple, net_io) -> None:
         """Bring ``inp`` and ``target`` up to date for ``scaling`` (``shift``, ``scale``,
-        ``tau_std``; ``net_io(rows, scaling)`` -> (input, target), row by row)."""
+        ``tau_std``, then anything else the target depends on; ``net_io(rows, scaling)`` ->
+        (input, target), row by row)."""
         if scaling is not self._scaling:
             self._scaling = scaling
             self.dirty[:self.n] = True
-        shift, _, tau_std = scaling
+        shift, tau_std = scaling[0], scaling[2]
         if self.inp.shape != (self.capacity, len(shift)):
             self.inp = np.zeros((self.capacity, len(shift)), dtype=np.float32)
             self.target = np.zeros((self.capacity, len(tau_std)), dtype=np.float32)

@@ -9,7 +9,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from wrenchd.models.body_wall_tracker import BodyWallTrackerConfig
-from wrenchd.models.estimator.correction import CorrKernel
+from wrenchd.models.estimator.correction import CorrConfig, CorrKernel
 
 
 class AdaptationConfig(BaseModel):
@@ -53,6 +53,21 @@ class AdaptationConfig(BaseModel):
     drift_lead_s: float = Field(default=0.0, ge=0.0,
                                 description="how long before its detection a drift is taken "
                                             "to have begun [s]")
+    trocar_physics: bool = Field(
+        default=True,
+        description="step 2 also holds the body wall's physics (a spring-damper about the "
+                    "incision), linear in 12 parameters that the rounds fit by least squares "
+                    "on the buffer (trocar_fit_s): what carries to poses the net has not seen "
+                    "(models/estimator/trocar_physics.py)")
+    trocar_fit_s: float | None = Field(
+        default=60.0, ge=0.0,
+        description="the body wall's physics is re-fitted in the rounds of this long from the "
+                    "first one [s] (the calibration minute) and then held: the net follows "
+                    "what changes later; None: re-fitted in every round")
+    trocar_shrink: float = Field(
+        default=1e-3, ge=0.0,
+        description="ridge weight of that fit towards the current parameters, as a multiple "
+                    "of the mean diagonal of its column-scaled Gram matrix [-]")
     seed: int = Field(default=0, description="seed of the batches and of a fresh Corr's weights")
     body_wall: BodyWallTrackerConfig = Field(
         default_factory=BodyWallTrackerConfig,
@@ -68,6 +83,12 @@ class AdaptationConfig(BaseModel):
             raise ValueError(f"min_train_samples ({self.min_train_samples}) exceeds what "
                              f"recent_size + reservoir_size hold ({held}): no round would run")
         return self
+
+
+def corr_config_of(config: AdaptationConfig) -> CorrConfig:
+    """The structure of the correction net that ``config`` adapts."""
+    return CorrConfig(window=config.window, hidden_size=config.hidden_size,
+                      trocar_physics=config.trocar_physics)
 
 
 @dataclass

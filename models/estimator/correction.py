@@ -28,6 +28,8 @@ from wrenchd.models.errors import ConfigError, DataError
 from wrenchd.models.estimator.features import N_FEATURES, history_windows
 from wrenchd.models.estimator.free_space import MIN_STD, FreeSpaceModel, GroupedTorqueModel, check_groups
 from wrenchd.models.estimator.kernels import GroupedRecurrentKernel, LSTMLayerKernel, MLPKernel
+from wrenchd.models.estimator.trocar_physics import (N_TROCAR, trocar_torque, wall_matrices,
+                                                     wall_torque_one)
 from wrenchd.models.series import N_JOINTS
 
 
@@ -38,10 +40,16 @@ class CorrConfig(BaseModel):
 
     window: int = Field(default=10, ge=1, le=1000, description="history samples per input")
     hidden_size: int = Field(default=256, ge=1, description="units of the hidden layer")
+    trocar_physics: bool = Field(
+        default=False, description="add the body wall's physics, linear in 12 parameters "
+                                   "(buffer trocar_theta, fitted by least squares: "
+                                   "models/estimator/trocar_physics.py), to the net's output")
 
 
 class Corr(nn.Module):
-    """``tau = tau_1 + f([x_{t-W+1..t}], tau_1)``: (B, W, 12), (B, 6) -> (B, 6)."""
+    """``tau = tau_1 + f([x_{t-W+1..t}], tau_1)``: (B, W, 12), (B, 6) -> (B, 6); with
+    ``trocar_physics``, ``+ X(q_t, dq_t) theta`` (:mod:`~wrenchd.models.estimator.trocar_physics`;
+    ``theta`` is the buffer ``trocar_theta``, set by least squares, not by gradients)."""
 
     def __init__(self, config: CorrConfig | None = None) -> None:
         super().__init__()
@@ -53,6 +61,8 @@ class Corr(nn.Module):
         self.register_buffer("in_std", torch.ones(N_FEATURES))
         self.register_buffer("tau_mean", torch.zeros(N_JOINTS))   # of step-1 torques
         self.register_buffer("tau_std", torch.ones(N_JOINTS))     # also the correction's unit
+        if self.config.trocar_physics:
+            self.register_buffer("trocar_theta", torch.zeros(N_TROCAR))
 
     @property
     def window(self) -> int:
@@ -96,7 +106,13 @@ class Corr(nn.Module):
 
     def forward(self, windows: torch.Tensor, step1: torch.Tensor) -> torch.Tensor:
         """Corrected torques (B, 6) [N m; N]."""
-        return step1 + self.correction_normalised(windows, step1) * self.tau_std
+        out = step1 + self.correction_normalised(windows, step1) * self.tau_std
+        if self.config.trocar_physics:
+            last = windows[:, -1].detach().to("cpu", torch.float64).numpy()
+            tau = trocar_torque(last[:, :N_JOINTS], last[:, N_JOINTS:],
+                                self.trocar_theta.detach().cpu().double().numpy())
+            out = out + torch.as_tensor(tau, dtype=out.dtype, device=out.device)
+        return out
 
     @torch.inference_mode()
     def correct_sequence(self, features: np.ndarray, step1: np.ndarray) -> np.ndarray:
@@ -159,6 +175,10 @@ class CorrKernel:
         shift = np.concatenate([np.tile(f64["in_mean"], w), f64["tau_mean"]])
         scale = np.concatenate([np.tile(f64["in_std"], w), f64["tau_std"]])
         self.window, self.dtype = w, dtype
+        theta = f64.get("trocar_theta")
+        self.theta = theta if theta is not None and theta.any() else None
+        self._wall = (None if self.theta is None
+                      else tuple(m.tolist() for m in wall_matrices(self.theta)))
         self.mlp = MLPKernel.from_arrays(
             [(f64["net.0.weight"], f64["net.0.bias"], True),
              (f64["net.2.weight"], f64["net.2.bias"], False)], dtype,
@@ -169,7 +189,17 @@ class CorrKernel:
         """(B, W, 12) raw windows, (B, 6) step-1 torques -> (B, 6) corrected torques."""
         b = step1.shape[0]
         v = np.concatenate([windows.reshape(b, -1), step1], axis=1).astype(self.dtype, copy=False)
-        return step1 + self.mlp(v)
+        out = step1 + self.mlp(v)
+        if self.theta is None:
+            return out
+        last = windows[:, -1]
+        if b == 1:                      # the streaming case: plain floats
+            yaw, pitch = wall_torque_one(last[0, :N_JOINTS], last[0, N_JOINTS:], *self._wall)
+            out[0, 0] += yaw
+            out[0, 1] += pitch
+        else:
+            out += trocar_torque(last[:, :N_JOINTS], last[:, N_JOINTS:], self.theta)
+        return out
 
 
 class HistoryWindow:

@@ -12,7 +12,8 @@ import numpy as np
 
 from wrenchd.models.adaptation import Adapter, AdaptationConfig, RoundResult
 from wrenchd.models.adaptation.host import SETUP_CALLS, AdapterHost
-from wrenchd.models.estimator.correction import Corr, CorrConfig, zero_corr
+from wrenchd.models.adaptation.config import corr_config_of
+from wrenchd.models.estimator.correction import Corr, zero_corr
 
 class AdaptationBackend(Protocol):
     """Where offered samples go and accepted models come from."""
@@ -61,4 +62,4 @@ class InlineAdaptation:
 
 def initial_corr(config: AdaptationConfig) -> Corr:
     """The pipeline's starting ``Corr``: identity normalisation, output exactly zero."""
-    return zero_corr(CorrConfig(window=config.window, hidden_size=config.hidden_size))
+    return zero_corr(corr_config_of(config))

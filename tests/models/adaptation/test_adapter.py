@@ -105,9 +105,11 @@ def test_rounds_train_on_the_buffer_rows_normalised_once():
 def _stepped_adapter(refit_shrink: float) -> Adapter:
     """An adapter trained on one regime, then offered samples after a step change of the
     measured torques (a drift): the recent ring holds only the new regime, the reservoir
-    mostly the old one."""
+    mostly the old one. Without the trocar physics: these samples hold no trocar, and the
+    refit's tests replay the net's own steps."""
     cfg = AdaptationConfig(min_train_samples=200, recent_size=500, reservoir_size=1000,
-                           round_steps=20, interval_s=1.0, refit_shrink=0.0)
+                           round_steps=20, interval_s=1.0, refit_shrink=0.0,
+                           trocar_physics=False)
     adapter = Adapter(cfg)
     adapter.add(*samples(2000, seed=5))
     assert any(r.accepted for r in run_rounds(adapter, 6))
@@ -372,3 +374,34 @@ def test_an_idle_tick_is_one_that_does_nothing():
     host.call("PSM1", "fail", 3.1)
     assert not host.idle_tick("PSM1", 3.1)                 # an injected failure must run
     assert host.idle_tick("PSM9", 3.1)                     # not an adapting arm
+
+
+def test_the_trocar_physics_carries_the_body_wall_to_motion_the_net_has_not_seen():
+    """Rounds on 40 s of a yaw/pitch sweep under the body wall; then a sweep elsewhere in the
+    workspace: the served correction with the trocar physics predicts the wall there to
+    within a tenth of its size, the net alone does not."""
+    from wrenchd.models.physics.effects.base import Motion
+    from wrenchd.models.physics.effects.body_wall import BodyWall
+
+    t = np.arange(0, 40.0, 0.01)
+    windows, step1, measured, _, _ = wall_samples(t, np.full(len(t), 12.0))
+    served = {}
+    for physics in (True, False):
+        adapter = Adapter(AdaptationConfig(min_train_samples=200, interval_s=1.0,
+                                           trocar_physics=physics))
+        adapter.add(windows, step1, measured, t)
+        assert any(r.accepted for r in run_rounds(adapter, 10))
+        served[physics] = adapter.corr.kernel()
+    t2 = np.arange(0, 10.0, 0.01)
+    q, dq = np.zeros((len(t2), 6)), np.zeros((len(t2), 6))
+    q[:, 0] = -0.6 + 0.3 * np.sin(2 * np.pi * 0.2 * t2)
+    dq[:, 0] = 0.3 * 2 * np.pi * 0.2 * np.cos(2 * np.pi * 0.2 * t2)
+    q[:, 1] = 0.5 + 0.2 * np.cos(2 * np.pi * 0.17 * t2)
+    dq[:, 1] = -0.2 * 2 * np.pi * 0.17 * np.sin(2 * np.pi * 0.17 * t2)
+    wall = BodyWall({"pressure_mmhg": 12.0}).torque(Motion(t2, q, dq, np.zeros_like(q), None))
+    w2 = np.repeat(np.concatenate([q, dq], 1)[:, None], 10, axis=1)
+    s2 = np.zeros((len(t2), 6), np.float32)
+    size = np.sqrt(np.mean(wall[:, :2] ** 2))
+    err = {k: np.sqrt(np.mean((v.correct(w2, s2)[:, :2] - wall[:, :2]) ** 2))
+           for k, v in served.items()}
+    assert err[True] < 0.1 * size < err[False], (err, size)
