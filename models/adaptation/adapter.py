@@ -462,7 +462,7 @@ class Adapter:
             before = _rmse_mean(tuner.forward(h_inp), h_target)
         fitted = scaling
         if self._trocar_until is None:
-            self._trocar_until = t + (np.inf if c.trocar_fit_s is None else c.trocar_fit_s)
+            self._trocar_until = t + c.trocar_fit_s
         if scaling[3] is not None and t < self._trocar_until:
             # the physics first, against the serving net; the net then learns what is left
             fitted = self._refit_trocar(tuner, scaling)

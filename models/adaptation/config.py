@@ -59,11 +59,11 @@ class AdaptationConfig(BaseModel):
                     "incision), linear in 12 parameters that the rounds fit by least squares "
                     "on the buffer (trocar_fit_s): what carries to poses the net has not seen "
                     "(models/estimator/trocar_physics.py)")
-    trocar_fit_s: float | None = Field(
+    trocar_fit_s: float = Field(
         default=60.0, ge=0.0,
         description="the body wall's physics is re-fitted in the rounds of this long from the "
                     "first one [s] (the calibration minute) and then held: the net follows "
-                    "what changes later; None: re-fitted in every round")
+                    "what changes later; inf: re-fitted in every round")
     trocar_shrink: float = Field(
         default=1e-3, ge=0.0,
         description="ridge weight of that fit towards the current parameters, as a multiple "

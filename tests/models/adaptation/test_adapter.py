@@ -405,3 +405,26 @@ def test_the_trocar_physics_carries_the_body_wall_to_motion_the_net_has_not_seen
     err = {k: np.sqrt(np.mean((v.correct(w2, s2)[:, :2] - wall[:, :2]) ** 2))
            for k, v in served.items()}
     assert err[True] < 0.1 * size < err[False], (err, size)
+
+
+def test_the_trocar_physics_is_fitted_in_its_first_rounds_then_held():
+    """A stiffer wall (12 -> 20 mmHg) after ``trocar_fit_s``: the wall's parameters stay as
+    the first rounds fitted them (the net follows the change); re-fitted in every round
+    (``inf``) they move to it."""
+    t = np.arange(0, 40.0, 0.01)
+    before = t < 20.0
+    windows, step1, measured, _, _ = wall_samples(t, np.where(before, 12.0, 20.0))
+    held = {}
+    for fit_s in (15.0, np.inf):
+        adapter = Adapter(AdaptationConfig(min_train_samples=200, interval_s=1.0,
+                                           trocar_fit_s=fit_s))
+        adapter.add(windows[before], step1[before], measured[before], t[before])
+        thetas = {}
+        for k in range(40):
+            if k == 20:
+                adapter.add(windows[~before], step1[~before], measured[~before], t[~before])
+            adapter.round(float(k))
+            thetas[k] = adapter.corr.trocar_theta.clone()
+        assert np.abs(thetas[14].numpy()).max() > 0
+        held[fit_s] = torch.equal(thetas[14], thetas[39])
+    assert held[15.0] and not held[np.inf]
