@@ -71,36 +71,54 @@ def test_a_run_stopped_early_stays_stopped_and_another_runs_file_is_refused(seri
         fit_free_space(series, SMALL, _recipe(3), checkpoint=tmp_path / "junk.pt")
 
 
-def test_a_killed_training_process_resumes_where_it_stopped(series, tmp_path):
-    """SIGKILL a training subprocess after its second epoch's checkpoint; train again here
-    from the file: the weights of an uninterrupted run."""
-    torch.set_num_threads(1)
-    path = tmp_path / "step1.pt"
-    marker = tmp_path / "epochs.txt"
+def _training_process(tmp_path, epochs: int, stop_request: bool):
+    """A subprocess training a small step-1 net to ``epochs`` with a checkpoint, writing each
+    finished epoch to a marker file and pausing after it (room for a signal to land
+    mid-run); with ``stop_request``, under the command line's stop handling, each epoch ends
+    with the reproduction's stop check and a stop exits 128 + the signal. Returns the
+    process, the checkpoint and the marker, once two epochs are saved."""
+    path, marker = tmp_path / "step1.pt", tmp_path / "epochs.txt"
+    check = "stop_between_epochs(epoch, loss)" if stop_request else "pass"
     script = textwrap.dedent(f"""
-        import time, torch
+        import sys, time, torch
         torch.set_num_threads(1)
         from wrenchd.adapters.sim.scenarios import run_scenario
         from wrenchd.models.estimator.free_space import FreeSpaceConfig
         from wrenchd.models.estimator.free_space_training import fit_free_space
         from wrenchd.models.estimator.training import recipe
+        from wrenchd.service.runtime.stopping import StopSignals, Stopped
+        from wrenchd.service.studies.reproduction_training import stop_between_epochs
         js = run_scenario("free-space", 60.0, 1).joint_states.slice(0, 2000)
-        cfg = recipe("free-space", epochs=6, window=20, lane_windows=2, batch_size=8, seed=7,
-                     lr_halving_epochs=2, patience=None)
+        cfg = recipe("free-space", epochs={epochs}, window=20, lane_windows=2, batch_size=8,
+                     seed=7, lr_halving_epochs=2, patience=None)
         def on_epoch(epoch, loss):
             open({str(marker)!r}, "a").write(f"{{epoch}}\\n")
-            time.sleep(0.5)          # room for the signal to land mid-run
-        fit_free_space([js], FreeSpaceConfig(hidden_size=8, seal_hidden_size=8), cfg,
-                       on_epoch=on_epoch, checkpoint={str(path)!r})
+            time.sleep(0.4)
+            {check}
+        try:
+            with StopSignals():
+                fit_free_space([js], FreeSpaceConfig(hidden_size=8, seal_hidden_size=8), cfg,
+                               on_epoch=on_epoch, checkpoint={str(path)!r})
+        except Stopped as stop:
+            sys.exit(128 + stop.signum)
         """)
     proc = subprocess.Popen([sys.executable, "-c", script])
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline:
         if marker.is_file() and len(marker.read_text().split()) >= 2:
-            break
+            return proc, path, marker
         if proc.poll() is not None:
             pytest.fail(f"the training process ended early ({proc.returncode})")
         time.sleep(0.05)
+    proc.kill()
+    pytest.fail("the training process saved no two epochs in 120 s")
+
+
+def test_a_killed_training_process_resumes_where_it_stopped(series, tmp_path):
+    """SIGKILL a training subprocess after its second epoch's checkpoint; train again here
+    from the file: the weights of an uninterrupted run."""
+    torch.set_num_threads(1)
+    proc, path, marker = _training_process(tmp_path, 6, stop_request=False)
     proc.send_signal(signal.SIGKILL)
     proc.wait(timeout=30)
     assert proc.returncode == -signal.SIGKILL
@@ -117,39 +135,7 @@ def test_sigterm_stops_a_training_after_its_saved_epoch_and_it_resumes(series, t
     request, checked after each saved epoch): it exits with 128 + 15 at once, the checkpoint
     holds every epoch it began, and training again from the file ends as an unbroken run."""
     torch.set_num_threads(1)
-    path = tmp_path / "step1.pt"
-    marker = tmp_path / "epochs.txt"
-    script = textwrap.dedent(f"""
-        import sys, time, torch
-        torch.set_num_threads(1)
-        from wrenchd.adapters.sim.scenarios import run_scenario
-        from wrenchd.models.estimator.free_space import FreeSpaceConfig
-        from wrenchd.models.estimator.free_space_training import fit_free_space
-        from wrenchd.models.estimator.training import recipe
-        from wrenchd.service.runtime.stopping import StopSignals, Stopped
-        from wrenchd.service.studies.reproduction_training import stop_between_epochs
-        js = run_scenario("free-space", 60.0, 1).joint_states.slice(0, 2000)
-        cfg = recipe("free-space", epochs=40, window=20, lane_windows=2, batch_size=8, seed=7,
-                     lr_halving_epochs=2, patience=None)
-        def on_epoch(epoch, loss):
-            open({str(marker)!r}, "a").write(f"{{epoch}}\\n")
-            time.sleep(0.3)
-            stop_between_epochs(epoch, loss)
-        try:
-            with StopSignals():
-                fit_free_space([js], FreeSpaceConfig(hidden_size=8, seal_hidden_size=8), cfg,
-                               on_epoch=on_epoch, checkpoint={str(path)!r})
-        except Stopped as stop:
-            sys.exit(128 + stop.signum)
-        """)
-    proc = subprocess.Popen([sys.executable, "-c", script])
-    deadline = time.monotonic() + 120
-    while time.monotonic() < deadline:
-        if marker.is_file() and len(marker.read_text().split()) >= 2:
-            break
-        if proc.poll() is not None:
-            pytest.fail(f"the training process ended early ({proc.returncode})")
-        time.sleep(0.05)
+    proc, path, marker = _training_process(tmp_path, 40, stop_request=True)
     proc.send_signal(signal.SIGTERM)
     proc.wait(timeout=30)
     assert proc.returncode == 128 + signal.SIGTERM
