@@ -74,7 +74,7 @@ class Adapter:
     >>> adapter.recent.n, len(adapter.holdout)          # every 5th sample is held out
     (800, 200)
     >>> result = adapter.round(5.0)
-    >>> result.accepted, result.version, result.val_after < result.val_before / 5
+    >>> result.accepted, result.version, result.val_after < result.val_before / 4
     (True, 1, True)
     >>> adapter.round(5.1) is None                     # the next one is due interval_s later
     True
