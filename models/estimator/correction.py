@@ -194,7 +194,8 @@ class CorrKernel:
             return out
         last = windows[:, -1]
         if b == 1:                      # the streaming case: plain floats
-            yaw, pitch = wall_torque_one(last[0, :N_JOINTS], last[0, N_JOINTS:], *self._wall)
+            row = last[0].tolist()
+            yaw, pitch = wall_torque_one(row, row[N_JOINTS:], *self._wall)
             out[0, 0] += yaw
             out[0, 1] += pitch
         else:
