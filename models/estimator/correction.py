@@ -71,8 +71,10 @@ class Corr(nn.Module):
     @classmethod
     def from_state(cls, config: CorrConfig, state: dict[str, np.ndarray]) -> Corr:
         """An eval-mode net of ``config`` holding ``state`` (a ``state_dict`` as NumPy arrays),
-        in the state's float type."""
+        in the state's float type; with the trocar physics if and only if the state has its
+        parameters (a net served from a checkpoint of either kind takes the adapter's next)."""
         f64 = np.asarray(state["net.0.weight"]).dtype == np.float64
+        config = config.model_copy(update={"trocar_physics": "trocar_theta" in state})
         corr = cls(config).to(torch.float64 if f64 else torch.float32)
         corr.load_state_dict({k: torch.from_numpy(np.array(v)) for k, v in state.items()})
         return corr.eval()

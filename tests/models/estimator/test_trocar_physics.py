@@ -134,3 +134,6 @@ def test_the_serving_kernel_adds_the_physics_as_the_module_does():
         np.testing.assert_allclose(one, module[::37], atol=2e-5)
     again = Corr.from_state(corr.config, corr.state_arrays())
     assert torch.equal(again.trocar_theta, corr.trocar_theta)
+    # the state decides: a net configured without the physics takes a state with it, and back
+    assert Corr.from_state(plain.config, corr.state_arrays()).config.trocar_physics
+    assert not Corr.from_state(corr.config, plain.state_arrays()).config.trocar_physics
