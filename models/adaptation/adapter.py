@@ -293,16 +293,16 @@ class Adapter:
         y = torch.from_numpy(rows[:, w * 12 + N_JOINTS:])
         return x, s, y
 
-    def _scaling(self, corr: Corr, theta: np.ndarray | None = None) -> tuple:
+    def _scaling(self, corr: Corr) -> tuple:
         """``shift``, ``scale`` of a row's network input (window, step-1 torque) and the torque
         scale, as float32 arrays: the normalisation of ``corr`` applied to buffer rows; then
-        the trocar physics' parameters (float64; ``theta``, else ``corr``'s; None without
-        them), whose torque the net's target leaves out."""
+        ``corr``'s trocar physics parameters (float64; None without them), whose torque the
+        net's target leaves out."""
         w = self.config.window
         shift = np.concatenate([np.tile(corr.in_mean.numpy(), w), corr.tau_mean.numpy()])
         scale = np.concatenate([np.tile(corr.in_std.numpy(), w), corr.tau_std.numpy()])
-        if theta is None and corr.config.trocar_physics:
-            theta = corr.trocar_theta.double().numpy().copy()
+        theta = (corr.trocar_theta.double().numpy().copy() if corr.config.trocar_physics
+                 else None)
         return (shift.astype(np.float32), scale.astype(np.float32),
                 corr.tau_std.numpy().astype(np.float32), theta)
 
