@@ -306,6 +306,11 @@ class Adapter:
         return (shift.astype(np.float32), scale.astype(np.float32),
                 corr.tau_std.numpy().astype(np.float32), theta)
 
+    def _residual(self, rows: np.ndarray, dtype=np.float32) -> np.ndarray:
+        """(n, 6) measured minus step-1 torques of rows, computed in ``dtype``."""
+        k = self.config.window * 12 + N_JOINTS
+        return rows[:, k:].astype(dtype, copy=False) - rows[:, k - N_JOINTS:k]
+
     def _net_io(self, rows: np.ndarray, scaling, tensors: bool = True):
         """Rows -> (normalised network input, target correction in torque-std units): the same
         numbers as ``Corr.normalised_input`` and ``(measured - step1 - trocar) / tau_std``
@@ -314,7 +319,7 @@ class Adapter:
         shift, scale, tau_std, theta = scaling
         k = self.config.window * 12 + N_JOINTS
         inp = (rows[:, :k] - shift) / scale
-        residual = rows[:, k:] - rows[:, k - N_JOINTS:k]
+        residual = self._residual(rows)
         if theta is not None:
             residual = residual - trocar_torque(*self._positions(rows), theta)
         target = (residual / tau_std).astype(np.float32)
@@ -344,9 +349,7 @@ class Adapter:
                  if ring.n]
         rows = np.concatenate([p[0] for p in parts])
         net = np.concatenate([tuner.forward(p[1]) for p in parts]).astype(np.float64)
-        k = self.config.window * 12 + N_JOINTS
-        residual = (rows[:, k:].astype(np.float64) - rows[:, k - N_JOINTS:k]
-                    - net * tau_std.astype(np.float64))
+        residual = self._residual(rows, np.float64) - net * tau_std.astype(np.float64)
         theta = fit_trocar(*self._positions(rows), residual, theta, self.config.trocar_shrink)
         theta = theta.astype(np.float32).astype(np.float64)     # as the net's buffer holds it
         fitted = (shift, scale, tau_std, theta)
