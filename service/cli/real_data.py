@@ -104,6 +104,11 @@ def _cmd(args: argparse.Namespace) -> int:
         summary["known_loads"] = [{"file": k["file"], "mass_kg": k["mass_kg"],
                                    "fitted_mass_kg": round(k["fitted_mass_kg"], 4)}
                                   for k in r["known_loads"]]
+        summary["known_load_pairs"] = [
+            {"files": p["files"], "expected_difference_kg": round(p["expected_difference_kg"], 4),
+             "fitted_difference_kg": round(p["fitted_difference_kg"][p["served"]], 4),
+             "efforts_alone_kg": round(p["fitted_difference_kg"]["effort"], 4)}
+            for p in r["known_load_pairs"]]
     print(json.dumps(summary, indent=1))
     return 0
 

@@ -35,6 +35,12 @@ def real_robot(args: argparse.Namespace) -> int:
     for load in r["step1"]["known_loads"]:
         print(f"{load['file'].rsplit('/', 1)[-1]}: fitted {1000 * load['fitted_mass_kg']:.1f} g "
               f"of {1000 * load['mass_kg']:.0f} g")
+    for pair in r["step1"].get("known_load_pairs", []):
+        heavy, light = (f.rsplit("/", 1)[-1] for f in reversed(pair["files"]))
+        print(f"{heavy} - {light}: the efforts alone fit "
+              f"{1000 * pair['fitted_difference_kg']['effort']:.1f} g of "
+              f"{1000 * pair['expected_difference_kg']:.0f} g; one run's share "
+              f"{1000 * pair['per_run_kg']:.1f} g")
     print(f"wrote {args.out}/report.md and report.json in {r['wall_s']:.0f} s")
     return 0
 

@@ -13,7 +13,9 @@ Known loads (``known_loads``): a mass at a given point of a given link
 estimated external torque is scored against them and the mass refitted with the point held,
 also with gravity turned about the yaw axis (:data:`GRAVITY_TILTS_DEG`) as a sensitivity to the
 assumed gravity direction (the base frame's -z), and with the point moved by
-:data:`POINT_SHIFT_M` along the link's x and y as a sensitivity to the given point.
+:data:`POINT_SHIFT_M` along the link's x and y as a sensitivity to the given point. Two runs of
+the same path with different loads give how far the runs themselves differ beyond the loads
+(``known_load_pairs``, :func:`run_to_run`): the limit on one run's fitted mass.
 """
 
 from __future__ import annotations
@@ -138,19 +140,47 @@ def fitted_mass(expected_per_kg: np.ndarray, external: np.ndarray) -> float:
     return fit_mass(expected_per_kg, external)["mass_kg"]
 
 
-def known_load_study(trained: Trained, loads: Sequence[KnownLoad]) -> list[dict[str, Any]]:
-    """Expected against estimated external torques for each known load (JSON-ready)."""
+@dataclass
+class LoadRun:
+    """One known load's recording on the scoring grid: the expected torque per kilogram at
+    the load's point and each model's estimated external torque (effort minus prediction)."""
+
+    load: KnownLoad
+    js: JointStates
+    rate_hz: float
+    per_kg: np.ndarray
+    external: dict[str, np.ndarray]
+
+
+def load_runs(trained: Trained, loads: Sequence[KnownLoad]) -> list[LoadRun]:
+    """Each load's recording at the hybrid's rate with every model's external torque."""
     from wrenchd.models.physics.point_load import point_load_torque
 
-    out = []
+    runs = []
     for load in loads:
         js = load.source.load()
         rate_hz = 1.0 / float(np.median(np.diff(js.t)))
         if hasattr(trained, "hybrid"):
             js = at_rate(js, trained.hybrid.acceleration.dt_s)
         dt = float(np.median(np.diff(js.t)))
+        per_kg = point_load_torque(js.position, load.link, np.asarray(load.point), dt)
+        external = {key: js.effort - pred for key, pred in trained.predict(js).items()
+                    if not key.startswith("_")}
+        runs.append(LoadRun(load, js, rate_hz, per_kg, external))
+    return runs
+
+
+def known_load_study(trained: Trained, loads: Sequence[KnownLoad],
+                     runs: Sequence[LoadRun] | None = None) -> list[dict[str, Any]]:
+    """Expected against estimated external torques for each known load (JSON-ready);
+    ``runs``: :func:`load_runs` of the same loads, where already computed."""
+    from wrenchd.models.physics.point_load import point_load_torque
+
+    out = []
+    for run in runs if runs is not None else load_runs(trained, loads):
+        load, js, rate_hz, per_kg = run.load, run.js, run.rate_hz, run.per_kg
+        dt = float(np.median(np.diff(js.t)))
         point = np.asarray(load.point)
-        per_kg = point_load_torque(js.position, load.link, point, dt)
         static_per_kg = point_load_torque(js.position, load.link, point)
         joints = np.flatnonzero(np.sqrt(np.mean(per_kg ** 2, axis=0)) > 1e-9)
         expected = load.mass_kg * per_kg
@@ -172,10 +202,7 @@ def known_load_study(trained: Trained, loads: Sequence[KnownLoad]) -> list[dict[
                 moved[axis] += sign * POINT_SHIFT_M
                 shifted[f"{name}{sign * POINT_SHIFT_M * 100:+g}cm"] = point_load_torque(
                     js.position, load.link, moved, dt)
-        for key, pred in trained.predict(js).items():
-            if key.startswith("_"):
-                continue
-            external = js.effort - pred
+        for key, external in run.external.items():
             force = tip_forces(js.position, external - expected)
             rec["models"][key] = {
                 "fitted_mass_kg": fitted_mass(per_kg, external),
@@ -194,4 +221,57 @@ def known_load_study(trained: Trained, loads: Sequence[KnownLoad]) -> list[dict[
         rec["torque_rmse"] = served["torque_rmse"]
         rec["force_error_N"] = served["force_error_N"]
         out.append(rec)
+    return out
+
+
+#: Two known-load runs follow the same path where their joint positions (yaw, pitch,
+#: insertion) agree within this [rad; m] sample by sample: the WPI loaded runs of trajectory
+#: one agree within a few milliradians (../shared/data/wpi-psm/README.md).
+SAME_PATH_TOL = 0.01
+
+
+def _same_path(a: LoadRun, b: LoadRun) -> bool:
+    n = min(len(a.js), len(b.js))
+    if a.load.link != b.load.link or abs(a.rate_hz / b.rate_hz - 1.0) > 0.01 or n < 0.95 * max(
+            len(a.js), len(b.js)):
+        return False
+    return bool(np.abs(a.js.position[:n, :3] - b.js.position[:n, :3]).max() < SAME_PATH_TOL)
+
+
+def run_to_run(runs: Sequence[LoadRun]) -> list[dict[str, Any]]:
+    """What two runs of the same path with different loads on the same link tell apart.
+
+    The difference of their external torques, sample by sample, is fitted to the difference
+    of the loads' expected torques (the heavier load's point held, the lighter load's torque
+    taken as given). Whatever error a model makes on the path itself cancels; with the
+    measured efforts alone (``effort``) no model enters at all. What remains is how much the
+    two runs differ beyond the loads: a limit on any one run's fitted mass, whatever the
+    model. ``per_run_kg``: the difference's error over sqrt 2, one run's share where the two
+    runs' errors are alike and independent.
+    """
+    out = []
+    for i, a in enumerate(runs):
+        for b in runs[i + 1:]:
+            if a.load.mass_kg == b.load.mass_kg or not _same_path(a, b):
+                continue
+            light, heavy = sorted((a, b), key=lambda r: r.load.mass_kg)
+            n = min(len(light.js), len(heavy.js))
+            known = light.load.mass_kg * (heavy.per_kg[:n] - light.per_kg[:n])
+            diffs = {"effort": heavy.js.effort[:n] - light.js.effort[:n]}
+            diffs.update({key: heavy.external[key][:n] - light.external[key][:n]
+                          for key in heavy.external if key in light.external})
+            fitted = {key: fitted_mass(heavy.per_kg[:n], d - known) for key, d in diffs.items()}
+            expected = heavy.load.mass_kg - light.load.mass_kg
+            served = "hybrid" if "hybrid" in fitted else "effort"
+            error = fitted[served] - expected
+            out.append({
+                "files": [light.load.source.label, heavy.load.source.label],
+                "masses_kg": [light.load.mass_kg, heavy.load.mass_kg],
+                "rate_hz": light.rate_hz,
+                "path_difference_max": float(np.abs(
+                    light.js.position[:n, :3] - heavy.js.position[:n, :3]).max()),
+                "expected_difference_kg": expected,
+                "fitted_difference_kg": {k: float(v) for k, v in fitted.items()},
+                "served": served, "error_kg": float(error),
+                "per_run_kg": float(abs(error) / np.sqrt(2.0))})
     return out

@@ -319,7 +319,13 @@ def evaluate(train: Sequence[Source], test: Source, models: Sequence[str] = MODE
     torques and the free-motion tip force), estimate the external torque on each of
     ``loads`` and score it against each of ``known_loads``; ``lookahead_ms``: the hybrid again
     with an acceleration reading that far ahead (offline). Returns a JSON-ready dict."""
-    from wrenchd.service.studies.newtons import known_load_study, tip_force_floor, tip_force_table
+    from wrenchd.service.studies.newtons import (
+        known_load_study,
+        load_runs,
+        run_to_run,
+        tip_force_floor,
+        tip_force_table,
+    )
 
     unknown = set(models) - set(MODELS)
     if unknown or not models:
@@ -345,7 +351,9 @@ def evaluate(train: Sequence[Source], test: Source, models: Sequence[str] = MODE
         r["train_file"]["tip_force_floor_N"] = (tip_force_floor(train_series[0], rep["period_s"])
                                                 if rep else None)
     if known_loads:
-        r["known_loads"] = known_load_study(trained, known_loads)
+        runs = load_runs(trained, known_loads)
+        r["known_loads"] = known_load_study(trained, known_loads, runs)
+        r["known_load_pairs"] = run_to_run(runs)
     if loads:
         r["loads"] = load_study(trained, train, train_series, loads)
     return r

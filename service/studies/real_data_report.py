@@ -137,8 +137,10 @@ def _moved_range(model: dict[str, Any]) -> str:
     return f"{min(moved.values()) * 1000:.0f} to {max(moved.values()) * 1000:.0f} g"
 
 
-def known_loads_section(loads: list[dict[str, Any]]) -> list[str]:
-    """Expected against estimated external torques of each known load."""
+def known_loads_section(loads: list[dict[str, Any]],
+                        pairs: list[dict[str, Any]] | None = None) -> list[str]:
+    """Expected against estimated external torques of each known load, and what two runs of
+    the same path tell apart (``pairs``)."""
     models = [k for k, _ in COLUMNS if k in loads[0]["models"]]
     lines = ["## Known loads: a mass at a given point, against the estimated external torque\n",
              ("Expected external torques: the load's gravity and inertia at the given point "
@@ -166,6 +168,26 @@ def known_loads_section(loads: list[dict[str, Any]]) -> list[str]:
                 f"{_moved_range(m)} | "
                 f"{m['torque_rmse'][0]:.3f}, {m['torque_rmse'][1]:.3f} | "
                 f"{m['force_error_N']['rms']:.2f} |")
+    return lines + [""] + (_pairs_lines(pairs) if pairs else [])
+
+
+def _pairs_lines(pairs: list[dict[str, Any]]) -> list[str]:
+    lines = [("Run to run: two runs of the same path with different loads on the same link. The "
+              "difference of their external torques, sample by sample, fitted to the difference "
+              "of the loads' expected torques: a model's error on the path cancels, and with "
+              "the measured efforts alone no model enters. The error is how far the runs differ "
+              "beyond the loads; over sqrt 2 it is one run's share, a limit on any single "
+              "run's fitted mass whatever the model.\n"),
+             "| runs | rate | path apart [mrad] | expected | efforts alone | served model | "
+             "one run's share |", "|" + " --- |" * 7]
+    for p in pairs:
+        fit = p["fitted_difference_kg"]
+        lines.append(
+            f"| {' - '.join(Path(f).name for f in reversed(p['files']))} | {p['rate_hz']:.0f} Hz "
+            f"| {p['path_difference_max'] * 1000:.1f} | {p['expected_difference_kg'] * 1000:.0f} g "
+            f"| {fit['effort'] * 1000:.1f} g | {p['served']} {fit[p['served']] * 1000:.1f} g | "
+            f"{p['per_run_kg'] * 1000:.1f} g ({100 * p['per_run_kg'] / min(p['masses_kg']):.0f} "
+            f"% of {min(p['masses_kg']) * 1000:.0f} g) |")
     return lines + [""]
 
 
@@ -209,7 +231,7 @@ def markdown(r: dict[str, Any], command: str) -> str:
     if "tip_force_N" in r["test_file"]:
         lines += tip_force_section(r)
     if "known_loads" in r:
-        lines += known_loads_section(r["known_loads"])
+        lines += known_loads_section(r["known_loads"], r.get("known_load_pairs"))
     rep = r["test_file"].get("repeatability")
     lines += ["## Test: torque RMSE per joint\n"]
     ahead = r.get("lookahead_ms", ())

@@ -113,7 +113,7 @@ def markdown(r: dict[str, Any]) -> str:
              (f"Recordings: `{r['data']}` (WPI free motion). Step 1 fitted on "
               "`one_no_weight.csv` alone; tested on `two.csv`, another trajectory.\n")]
     lines += tip_force_section(step1)
-    lines += known_loads_section(step1["known_loads"])
+    lines += known_loads_section(step1["known_loads"], step1.get("known_load_pairs"))
     held = (r.get("bundle") or {}).get("held_out") or {}
     lines += [f"Bundle: `{r['bundle']['path']}/` (`wrenchd fit` on `one_no_weight.csv`, the "
               "last 20 % held out)" + ("; held-out RMSE per joint, hybrid: "

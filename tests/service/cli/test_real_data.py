@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -108,8 +109,52 @@ def test_newtons_at_the_tip_and_known_loads(wpi_data, tmp_path):
         moved = rec["fitted_mass_point_moved_kg"]
         assert set(moved) == {"x-1cm", "x+1cm", "y-1cm", "y+1cm"}
         assert min(moved.values()) < rec["fitted_mass_kg"] < max(moved.values())
+    # The two full-speed runs follow one path: their difference needs no model (measured
+    # 117.7 g with the efforts alone, 116.8 g through least squares, for 100 g).
+    (pair,) = r["known_load_pairs"]
+    assert [Path(f).name for f in pair["files"]] == ["one_105g_parallel.csv",
+                                                     "one_205g_parallel.csv"]
+    fit = pair["fitted_difference_kg"]
+    assert fit["effort"] == pytest.approx(0.1177, rel=0.01)
+    assert fit["ls"] == pytest.approx(fit["effort"], abs=0.003)
+    # no hybrid in this run: the served figure is the efforts' own
+    assert pair["served"] == "effort"
+    assert pair["per_run_kg"] == pytest.approx(abs(fit["effort"] - 0.1) / np.sqrt(2), rel=1e-6)
     text = out.read_text()
-    assert "Newtons at the tip" in text and "Known loads" in text
+    assert "Newtons at the tip" in text and "Known loads" in text and "Run to run" in text
+
+
+def test_run_to_run_recovers_a_known_difference_and_pairs_only_one_path():
+    """Two synthetic runs of one path, loads 0.1 and 0.25 kg, the second with a 2 mN m pitch
+    offset: the fit returns the difference the offset makes, model or no model; a third run on
+    another path is paired with neither."""
+    from wrenchd.service.studies.newtons import KnownLoad, LoadRun, run_to_run
+
+    rng = np.random.default_rng(0)
+    t = np.arange(2000) * 0.005
+    q = np.zeros((t.size, 6))
+    q[:, 0], q[:, 1] = 0.5 * np.sin(t), 0.3 * np.cos(0.7 * t)
+    per_kg = np.zeros((t.size, 6))
+    per_kg[:, 0], per_kg[:, 1] = 0.1 * np.sin(q[:, 0]), 1.6 * np.cos(q[:, 1])
+    base = rng.normal(0.0, 0.05, (t.size, 6))
+
+    def run(mass, position, offset=0.0):
+        effort = base + mass * per_kg + rng.normal(0.0, 0.01, (t.size, 6))
+        effort[:, 1] += offset
+        load = KnownLoad.parse(f"x.csv:{mass}:parallel_upper:0.165,-0.02,0")
+        js = JointStates(t, position, np.zeros_like(q), effort)
+        return LoadRun(load, js, 200.0, per_kg, {"model": effort - 0.5 * base})
+
+    other = q.copy()
+    other[:, 1] += 0.05
+    pairs = run_to_run([run(0.1, q), run(0.25, q, offset=0.002), run(0.2, other)])
+    (pair,) = pairs
+    assert pair["masses_kg"] == [0.1, 0.25]
+    # least squares of the offset on per_kg's pitch column adds offset * mean / mean square
+    bias = 0.002 * per_kg[:, 1].sum() / (per_kg[:, :2] ** 2).sum()
+    for key in ("effort", "model"):
+        assert pair["fitted_difference_kg"][key] == pytest.approx(0.15 + bias, abs=0.002)
+    assert pair["served"] == "effort" and pair["error_kg"] == pytest.approx(bias, abs=0.002)
 
 
 def test_known_load_specs_are_validated():

@@ -28,6 +28,12 @@ def test_the_real_robot_report_runs_end_to_end(wpi_data, tmp_path):
     # the full-speed loads, least squares on their photographed point (measured 94 g, 211 g)
     assert 0.085 < loads[0]["models"]["ls"]["fitted_mass_kg"] < 0.105
     assert 0.195 < loads[1]["models"]["ls"]["fitted_mass_kg"] < 0.225
+    # the two pairs of runs on one path, each differing by 100 g (the efforts alone: 118, 112 g)
+    pairs = r["step1"]["known_load_pairs"]
+    assert [p["rate_hz"] for p in pairs] == [pytest.approx(200.0), pytest.approx(100.0)]
+    for p in pairs:
+        assert p["expected_difference_kg"] == pytest.approx(0.1)
+        assert 0.105 < p["fitted_difference_kg"]["effort"] < 0.125
     # the served pipeline on two.csv: the correction net's calibration minute, then after it
     gated, frozen = r["served"]
     assert (gated["policy"], frozen["policy"]) == ("gated", "frozen")
