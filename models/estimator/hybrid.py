@@ -13,7 +13,10 @@
   the trajectory): a smooth function that a 2 x 128 network fits in a minute on a CPU and
   runs in microseconds, with no recurrent state to warm up.
 * ``w``: the trust of :class:`wrenchd.models.estimator.coverage.Coverage`; outside the
-  training data's joint states the residual fades out and physics alone remains.
+  training data's joint states the residual fades out and physics alone remains. Where the
+  coverage is in doubt (between full and no trust) the residual keeps its trust only inside
+  the range of its training targets (:meth:`ResidualNet.range_trust`,
+  ``residual_range_margin``): ``w_cov (1 - (1 - w_cov)(1 - w_range))``.
 
 Causal: :meth:`HybridStep1.step` (sample by sample, several streams) and
 :meth:`HybridStep1.run` / :meth:`HybridStep1.predict_sequence` give the same numbers. It can
@@ -36,7 +39,7 @@ from typing import Any, Callable, ClassVar
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 from wrenchd.models.errors import ConfigError, DataError
-from wrenchd.models.estimator.coverage import Coverage, CoverageConfig
+from wrenchd.models.estimator.coverage import Coverage, CoverageConfig, smoothstep
 from wrenchd.models.estimator.features import N_FEATURES, segments
 from wrenchd.models.physics.causal_acceleration import (
     CausalAcceleration,
@@ -55,6 +58,9 @@ from wrenchd.models.series import N_JOINTS, JointStates
 
 FORMAT = "wrenchd-hybrid-step1"
 FORMAT_VERSION = 1
+#: The residual's trusted range: its training targets' quantiles this far in from each end
+#: (the extremes of a recording are single spikes).
+RANGE_QUANTILE = 0.001
 #: Residual network inputs: ``[q, dq, ddq_hat]``.
 N_RESIDUAL_INPUTS = 3 * N_JOINTS
 
@@ -101,6 +107,11 @@ class HybridConfig(BaseModel):
     coverage: CoverageConfig = Field(
         default_factory=lambda: CoverageConfig(acceleration_weight=0.3),
         description="trust region; the residual net reads accelerations, so they count")
+    residual_range_margin: float | None = Field(
+        default=0.25, gt=0.0,
+        description="where the coverage is in doubt, the residual is trusted within the "
+                    "range of its training targets (0.1 to 99.9 % per joint) and not at all "
+                    "this fraction of that range beyond it; None: no such bound")
     max_gap_s: float = Field(default=0.05, gt=0.0, description="a longer step splits a series")
 
 
@@ -114,6 +125,9 @@ class ResidualNet:
     in_mean: np.ndarray
     in_scale: np.ndarray
     out_scale: np.ndarray
+    #: (2, 6) the training targets' 0.1 and 99.9 % quantiles per joint [N m; N]; None:
+    #: unknown (a model saved without them)
+    out_range: np.ndarray | None = None
 
     def __call__(self, inputs: np.ndarray) -> np.ndarray:
         """(N, 18) ``[q, dq, ddq_hat]`` -> (N, 6) residual torques."""
@@ -123,6 +137,22 @@ class ResidualNet:
             if k < len(self.layers) - 1:
                 h = np.tanh(h)
         return h * self.out_scale
+
+    def range_trust(self, residual: np.ndarray, margin: float | None) -> np.ndarray | None:
+        """(T,) trust of (T, 6) ``residual`` outputs by how far the farthest joint lies outside
+        :attr:`out_range`: 1 inside it, 0 from ``margin`` times the range's width beyond it,
+        smooth between; None where there is no bound (no range or no margin).
+
+        A net asked about motion unlike its training (the same poses at half the speed, say)
+        can answer with torques it never had to produce; the distance in ``[q, dq, ddq]``
+        can still be near there, so the coverage alone would half-trust it.
+        """
+        if self.out_range is None or margin is None:
+            return None
+        low, high = self.out_range
+        width = np.maximum(high - low, 1e-12)
+        outside = np.maximum(np.maximum(low - residual, residual - high), 0.0) / width
+        return 1.0 - smoothstep(outside.max(axis=1) / margin)
 
 
 @dataclass(frozen=True)
@@ -163,7 +193,13 @@ class HybridStep1:
         phys = self.physics.predict(q, dq, acc, self._rigid, presliding)
         res = self.residual(np.concatenate([q, dq, acc], axis=1))
         rows = x if self.coverage.width == N_FEATURES else np.concatenate([x, acc], axis=1)
-        return HybridParts(phys, res, self.coverage.weight(rows), acc)
+        weight = self.coverage.weight(rows)
+        bound = self.residual.range_trust(res, self.config.residual_range_margin)
+        if bound is not None:
+            # the range decides only where the coverage doubts: w (1 - (1 - w)(1 - bound)),
+            # the coverage's trust times "well inside it, or inside the residual's range"
+            weight = weight * (1.0 - (1.0 - weight) * (1.0 - bound))
+        return HybridParts(phys, res, weight, acc)
 
     def parts(self, features: np.ndarray) -> HybridParts:
         """Physics, residual, trust and acceleration of one gap-free segment of (T, 12) rows."""
@@ -252,6 +288,8 @@ class HybridStep1:
                "coverage_points": self.coverage.points, "coverage_mean": self.coverage.mean,
                "coverage_scale": self.coverage.scale, "in_mean": self.residual.in_mean,
                "in_scale": self.residual.in_scale, "out_scale": self.residual.out_scale}
+        if self.residual.out_range is not None:
+            out["out_range"] = self.residual.out_range
         for k, (w, b) in enumerate(self.residual.layers):
             out[f"layer{k}.weight"], out[f"layer{k}.bias"] = w, b
         return {k: np.ascontiguousarray(v, dtype=np.float64) for k, v in out.items()}
@@ -285,7 +323,8 @@ class HybridStep1:
                        CausalAcceleration(a["acceleration_weights"], description["dt_s"],
                                           lookahead_samples(config.acceleration,
                                                             description["dt_s"])),
-                       ResidualNet(layers, a["in_mean"], a["in_scale"], a["out_scale"]),
+                       ResidualNet(layers, a["in_mean"], a["in_scale"], a["out_scale"],
+                                   a.get("out_range")),
                        Coverage(a["coverage_points"], a["coverage_mean"], a["coverage_scale"],
                                 config.coverage), dict(description.get("info", {})))
         except (KeyError, ValueError, TypeError) as exc:
@@ -439,4 +478,5 @@ def train_residual(inputs: np.ndarray, target: np.ndarray, config: ResidualNetCo
     linears = [m for m in net if isinstance(m, torch.nn.Linear)]
     layers = tuple((m.weight.detach().double().numpy().T.copy(),
                     m.bias.detach().double().numpy().copy()) for m in linears)
-    return ResidualNet(layers, mean, scale, out_scale), float(loss_sum)
+    out_range = np.quantile(target, [RANGE_QUANTILE, 1.0 - RANGE_QUANTILE], axis=0)
+    return ResidualNet(layers, mean, scale, out_scale, out_range), float(loss_sum)

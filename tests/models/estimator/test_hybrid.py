@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from wrenchd.models.errors import ConfigError, DataError
@@ -53,8 +55,12 @@ def rmse(a, b):
 
 def test_residual_learns_where_physics_misses(trained):
     test = trajectory(8.0)                                # the trained trajectory again
-    parts = trained.parts(np.concatenate([test.position, test.velocity], 1))
-    assert parts.weight.min() == 1.0                      # all inside the coverage
+    x = np.concatenate([test.position, test.velocity], 1)
+    parts = trained.parts(x)
+    # all inside the coverage: full trust, also where the net reaches past its targets' range
+    assert parts.weight.min() == 1.0
+    low, high = trained.residual.out_range
+    assert ((parts.residual < low) | (parts.residual > high)).any()
     phys, hyb = rmse(parts.physics, test.effort), rmse(parts.torque, test.effort)
     # The ripple is about 0.057 N m RMS and physics has no column for it.
     assert np.all(phys[:3] > 0.03), phys
@@ -146,6 +152,44 @@ def test_a_corr_trains_on_the_hybrid_and_removes_a_set_up_torque(trained):
     assert p.counters.estimated == len(test) and p.counters.offered > 0
 
 
+def test_a_residual_past_its_training_range_is_not_trusted(trained):
+    """Inside the range of its targets the residual keeps its trust; a quarter of the range's
+    width beyond it (``residual_range_margin``), none, smoothly between; where one joint
+    leaves, the whole sample's trust goes. Without a margin or a range: no bound."""
+    low, high = trained.residual.out_range
+    width = high - low
+    res = np.tile((low + high) / 2, (5, 1))
+    res[1] = high                                  # at the edge
+    res[2, 0] = high[0] + 0.125 * width[0]         # half the margin out, one joint
+    res[3, 2] = low[2] - 0.25 * width[2]           # the margin out
+    res[4, 1] = high[1] + 10 * width[1]
+    trust = trained.residual.range_trust(res, 0.25)
+    np.testing.assert_allclose(trust, [1.0, 1.0, 0.5, 0.0, 0.0], atol=1e-12)
+    assert trained.residual.range_trust(res, None) is None
+    unbounded = dataclasses.replace(trained.residual, out_range=None)
+    assert unbounded.range_trust(res, 0.25) is None
+
+
+def test_half_the_speed_is_inside_the_coverage_but_past_the_range():
+    """The trained trajectory at half its speed (a quarter of its accelerations): the
+    residual is asked about velocities and accelerations it never saw, and the coverage, in
+    doubt there, still half-trusts it; the range bound takes that trust back."""
+    config = HybridConfig(residual=ResidualNetConfig(hidden=(32, 32), epochs=30, lr=1e-2))
+    model = fit_hybrid([trajectory(16.0)], config)
+    free = fit_hybrid([trajectory(16.0)], config.model_copy(update={"residual_range_margin": None}))
+    t = np.arange(int(8.0 / DT)) * DT
+    slow = trajectory(16.0)
+    x = np.concatenate([slow.position[::2][:len(t)], slow.velocity[::2][:len(t)] / 2], 1)
+    bounded, unbounded = model.parts(x), free.parts(x)
+    np.testing.assert_array_equal(bounded.residual, unbounded.residual)
+    assert bounded.weight.sum() < 0.9 * unbounded.weight.sum()
+    assert np.all(bounded.weight <= unbounded.weight)
+    # the bound only acts where the coverage doubts: w (1 - (1 - w)(1 - range trust))
+    w, r = unbounded.weight, model.residual.range_trust(bounded.residual, 0.25)
+    np.testing.assert_allclose(bounded.weight, w * (1 - (1 - w) * (1 - r)), atol=1e-12)
+    assert np.all(bounded.weight[w == 1.0] == 1.0)
+
+
 def test_save_and_load(trained, tmp_path):
     path = tmp_path / "hybrid.pt"
     trained.save(path)
@@ -154,6 +198,11 @@ def test_save_and_load(trained, tmp_path):
     x = np.concatenate([test.position, test.velocity], 1)
     np.testing.assert_array_equal(loaded.predict_sequence(x), trained.predict_sequence(x))
     assert loaded.config == trained.config and loaded.info == trained.info
+    np.testing.assert_array_equal(loaded.residual.out_range, trained.residual.out_range)
+    # a model saved before the range bound existed loads, and has none
+    arrays = {k: v for k, v in trained.arrays().items() if k != "out_range"}
+    older = HybridStep1.from_parts(arrays, trained.description())
+    assert older.residual.out_range is None
     bad = tmp_path / "bad.pt"
     bad.write_bytes(b"not a model")
     with pytest.raises(ConfigError):
