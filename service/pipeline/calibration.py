@@ -181,6 +181,9 @@ class CalibrationPhase:
         self._mismatch_said = False           # the model_mismatch event of this calibration
         self._prior_sq = np.zeros(N_JOINTS)   # summed squared residual of the guard's free
         self._prior_n = 0                     # samples late in the calibration (gate's prior)
+        # judges the gate's warm-up after the calibration beside the guard, on the corrected
+        # residual (calibration_guard.judge_warmup); None: the guard alone
+        self._warmup_gate: FreeMotionGate | None = None
 
     @property
     def calibrating(self) -> bool:
@@ -222,10 +225,14 @@ class CalibrationPhase:
                 # samples waiting in the delay line, judged by the guard alone, go as well
                 self.counters.discarded_onsets += line.drop_onset(-1)
                 decision = decision._replace(trainable=False)
-        elif self._was_guarded and self.refuses and self.guard.gate.in_contact:
+        elif self._was_guarded and self.refuses:
             # the gate takes over from the guard in the middle of a contact: it goes on
             # with it (fresh, it would need a run of samples to find it, and train on them)
-            gate.take_over_contact(self.guard.gate.contact_start, t)
+            starts = [g.contact_start for g in (self.guard.gate, self._warmup_gate)
+                      if g is not None and g.in_contact]
+            if starts:
+                gate.take_over_contact(min(starts), t)
+            self._warmup_gate = None
         self._was_guarded = guarded
         return decision, calibrating, guarded
 
@@ -241,6 +248,8 @@ class CalibrationPhase:
         if guard is None:
             return GateDecision(True, score, -1, trainable=True)
         decision = guard.judge(index, t, effort - out.step1_torque)._replace(score=score)
+        if self._warmup_gate is not None and not calibrating:
+            decision = self._judge_corrected(index, t, out.external_torque, decision)
         if calibrating and not guard.last_free:
             self.counters.calibration_contact += 1
         elif calibrating and t >= self.end - self.config.calibration_guard.gate_prior_s:
@@ -255,6 +264,18 @@ class CalibrationPhase:
                 "threshold": self.config.calibration_guard.mismatch_ratio}))
         return decision
 
+    def _judge_corrected(self, index: int, t: float, residual: np.ndarray,
+                         guard: GateDecision) -> GateDecision:
+        """The guard's verdict on a sample of the gate's warm-up combined with the warm-up
+        gate's on the residual Corr leaves (6,) [N m; N]: contact where either calls it,
+        trainable where both let it train."""
+        g = self._warmup_gate.update(index, t, residual)
+        if g.free and g.contact_started < 0:
+            return guard
+        starts = [s for s in (guard.contact_started, g.contact_started) if s >= 0]
+        self.guard.last_free = False
+        return GateDecision(False, guard.score, min(starts) if starts else -1, trainable=False)
+
     def _step(self, t: float, events: list, backend, model_version: int) -> bool:
         """Whether the sample at ``t`` [s] is in the calibration: starts one on the first
         sample (``calibrating`` event, eager adaptation), ends it (``calibrated`` event, the
@@ -264,6 +285,7 @@ class CalibrationPhase:
             self._mismatch_said = False
             self._prior_sq[:] = 0.0
             self._prior_n = 0
+            self._warmup_gate = None
             if self.guard is not None:
                 self.guard.start()                      # a fresh window, the seeded scale
             if self.config.calibration_s > 0:
@@ -276,7 +298,7 @@ class CalibrationPhase:
             return True
         self.end = math.inf
         if self.config.calibration_s > 0:
-            prior = self._reset_gate()
+            prior = self._reset_gate(t)
             c = self.counters
             events.append(Event(t, EventKind.CALIBRATED, {"arm": self.arm, "model_version": model_version,
                                                   "samples": c.calibration_samples,
@@ -289,13 +311,22 @@ class CalibrationPhase:
                     "fraction": c.calibration_contact / max(c.calibration_samples, 1)}))
         return False
 
-    def _reset_gate(self) -> int:
+    def _reset_gate(self, t: float) -> int:
         """Reset the gate to warm up on the calibrated residual, its warm-up scale bounded by
         the prior (not with no guard, a guard that only warns, or fewer samples than the
-        gate's warm-up); how many samples bound it (0: none)."""
+        gate's warm-up); with ``judge_warmup`` a second gate, started at ``t`` [s] from
+        ``scale_factor`` times the prior, judges the warm-up beside the guard on the
+        corrected residual. How many samples gave the prior (0: none)."""
         n = self._prior_n
         if not self.refuses or n == 0 or n < self.gate.config.warmup_samples:
             self.gate.reset()
             return 0
-        self.gate.reset(prior=np.sqrt(self._prior_sq / n))
+        prior = np.sqrt(self._prior_sq / n)
+        self.gate.reset(prior=prior)
+        if self.config.calibration_guard.judge_warmup:
+            # the prior is an in-sample level (Corr trained on those samples): widened as the
+            # guard widens the step-1 model's held-out error to seed itself
+            self._warmup_gate = FreeMotionGate(self.gate.config)
+            self._warmup_gate.seed(self.config.calibration_guard.scale_factor * prior)
+            self._warmup_gate.settle(t)
         return n

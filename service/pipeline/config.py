@@ -123,6 +123,13 @@ class CalibrationGuardConfig(BaseModel):
                     "last gate_prior_s [s] (a warm-up of a few seconds that falls on a contact "
                     "would start the gate several times too wide); 0, or fewer such samples "
                     "than the gate's warm-up: the warm-up alone")
+    judge_warmup: bool = Field(
+        default=True,
+        description="refuse: with that prior, a second gate, started from scale_factor x "
+                    "the prior, judges the gate's warm-up after the calibration beside the "
+                    "guard, on the residual the correction net leaves: a sample is contact "
+                    "where either calls it (the guard alone judges the raw step-1 residual, "
+                    "where a trocar's force can hide a contact)")
     warn_fraction: float = Field(
         default=0.3, ge=0.0, le=1.0,
         description="a calibration whose samples the guard called contact more than this "
