@@ -170,14 +170,13 @@ def load_runs(trained: Trained, loads: Sequence[KnownLoad]) -> list[LoadRun]:
     return runs
 
 
-def known_load_study(trained: Trained, loads: Sequence[KnownLoad],
-                     runs: Sequence[LoadRun] | None = None) -> list[dict[str, Any]]:
-    """Expected against estimated external torques for each known load (JSON-ready);
-    ``runs``: :func:`load_runs` of the same loads, where already computed."""
+def known_load_study(runs: Sequence[LoadRun]) -> list[dict[str, Any]]:
+    """Expected against estimated external torques for each known load's run
+    (:func:`load_runs`), JSON-ready."""
     from wrenchd.models.physics.point_load import point_load_torque
 
     out = []
-    for run in runs if runs is not None else load_runs(trained, loads):
+    for run in runs:
         load, js, rate_hz, per_kg = run.load, run.js, run.rate_hz, run.per_kg
         dt = float(np.median(np.diff(js.t)))
         point = np.asarray(load.point)
@@ -230,12 +229,15 @@ def known_load_study(trained: Trained, loads: Sequence[KnownLoad],
 SAME_PATH_TOL = 0.01
 
 
-def _same_path(a: LoadRun, b: LoadRun) -> bool:
+def _path_apart(a: LoadRun, b: LoadRun) -> float | None:
+    """The largest difference [rad; m] of two runs' yaw, pitch and insertion, sample by
+    sample; None where they cannot be one path (another link or rate, or lengths more than
+    5 % apart)."""
     n = min(len(a.js), len(b.js))
     if a.load.link != b.load.link or abs(a.rate_hz / b.rate_hz - 1.0) > 0.01 or n < 0.95 * max(
             len(a.js), len(b.js)):
-        return False
-    return bool(np.abs(a.js.position[:n, :3] - b.js.position[:n, :3]).max() < SAME_PATH_TOL)
+        return None
+    return float(np.abs(a.js.position[:n, :3] - b.js.position[:n, :3]).max())
 
 
 def run_to_run(runs: Sequence[LoadRun]) -> list[dict[str, Any]]:
@@ -252,7 +254,8 @@ def run_to_run(runs: Sequence[LoadRun]) -> list[dict[str, Any]]:
     out = []
     for i, a in enumerate(runs):
         for b in runs[i + 1:]:
-            if a.load.mass_kg == b.load.mass_kg or not _same_path(a, b):
+            apart = _path_apart(a, b)
+            if a.load.mass_kg == b.load.mass_kg or apart is None or apart >= SAME_PATH_TOL:
                 continue
             light, heavy = sorted((a, b), key=lambda r: r.load.mass_kg)
             n = min(len(light.js), len(heavy.js))
@@ -268,8 +271,7 @@ def run_to_run(runs: Sequence[LoadRun]) -> list[dict[str, Any]]:
                 "files": [light.load.source.label, heavy.load.source.label],
                 "masses_kg": [light.load.mass_kg, heavy.load.mass_kg],
                 "rate_hz": light.rate_hz,
-                "path_difference_max": float(np.abs(
-                    light.js.position[:n, :3] - heavy.js.position[:n, :3]).max()),
+                "path_difference_max": apart,
                 "expected_difference_kg": expected,
                 "fitted_difference_kg": {k: float(v) for k, v in fitted.items()},
                 "served": served, "error_kg": float(error),

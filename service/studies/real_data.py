@@ -352,7 +352,7 @@ def evaluate(train: Sequence[Source], test: Source, models: Sequence[str] = MODE
                                                 if rep else None)
     if known_loads:
         runs = load_runs(trained, known_loads)
-        r["known_loads"] = known_load_study(trained, known_loads, runs)
+        r["known_loads"] = known_load_study(runs)
         r["known_load_pairs"] = run_to_run(runs)
     if loads:
         r["loads"] = load_study(trained, train, train_series, loads)
