@@ -273,7 +273,6 @@ class CalibrationPhase:
         if g.free and g.contact_started < 0:
             return guard
         starts = [s for s in (guard.contact_started, g.contact_started) if s >= 0]
-        self.guard.last_free = False
         return GateDecision(False, guard.score, min(starts) if starts else -1, trainable=False)
 
     def _step(self, t: float, events: list, backend, model_version: int) -> bool:
