@@ -93,7 +93,9 @@ def train_recurrent(model: GroupedTorqueModel, train: list[Segment], val: list[S
                     config: TrainConfig, on_epoch: Callable[[int, float], None] | None = None,
                     device: str | torch.device | None = "cpu",
                     checkpoint: Any = None) -> tuple[dict[str, Any], list[float]]:
-    """Train ``model`` in place (normalisation already set). Returns (validation, history).
+    """Train ``model`` in place (normalisation already set). Returns (validation, history);
+    the validation's ``converged`` says whether early stopping ended the training (validation
+    stalled for ``patience`` epochs) rather than the epoch ceiling.
 
     ``device``: where to train (None: CUDA when present); the model ends on the CPU.
     ``checkpoint``: a file (path) to save the training state to after every epoch and to go
@@ -187,7 +189,7 @@ def train_recurrent(model: GroupedTorqueModel, train: list[Segment], val: list[S
     target = np.concatenate([y for _, y in val])
     report = rmse_report(pred, target, model.out_mean.double().numpy(),
                           model.out_std.double().numpy())
-    return {**report, "epochs_run": len(history)}, history
+    return {**report, "epochs_run": len(history), "converged": finished}, history
 
 
 def fit_free_space(series: Sequence[JointStates], model_config: FreeSpaceConfig | None = None,

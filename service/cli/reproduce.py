@@ -16,7 +16,8 @@ paper's Corr recipe, the realistic handle, a 10 Hz causal output filter with bot
 A run that trains step 1 (``--paper``, ``--paper-quick``) saves every recurrent network's
 training under ``OUT/checkpoints/`` after each epoch: the same command started again after a
 stop goes on where it stopped (a file of another recipe or data is refused; remove the
-folder to start afresh).
+folder to start afresh). It writes the trained step-1 models under ``OUT/weights/``
+(``Base-seed0.pt``...: estimator checkpoints with their held-out scores, usable as ``--model``).
 
 Writes ``results.json`` (every number), ``force-rmse-vs-length.png`` (matplotlib, Agg) and
 ``README.md`` (the three tables, the oracle ratios, the fast Corr recipe beside the paper's).
@@ -35,6 +36,8 @@ from pathlib import Path
 
 #: The folder under ``--out`` that holds the training checkpoints.
 CHECKPOINTS = "checkpoints"
+#: The folder under ``--out`` that holds the trained step-1 models.
+WEIGHTS = "weights"
 
 
 def reproduce(args: argparse.Namespace) -> int:
@@ -72,7 +75,8 @@ def reproduce(args: argparse.Namespace) -> int:
                                    log=lambda m: print(m, file=sys.stderr, flush=True),
                                    device=args.device,
                                    checkpoints=(out / CHECKPOINTS if config.step1 is not None
-                                                else None))
+                                                else None),
+                                   weights=out / WEIGHTS if config.step1 is not None else None)
         wall = time.perf_counter() - start
         command = "wrenchd reproduce " + " ".join(args.argv)
         data = results.to_json()

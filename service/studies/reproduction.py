@@ -124,12 +124,14 @@ def run_reproduction(config: ReproductionConfig, base: FreeSpaceModel | None = N
                      pretrained_info: dict[str, Pretrained] | None = None,
                      log: Callable[[str], None] = print,
                      device: str | None = "cpu",
-                     checkpoints: Path | None = None) -> ReproductionResult:
+                     checkpoints: Path | None = None,
+                     weights: Path | None = None) -> ReproductionResult:
     """Train the per-length configurations, evaluate all six, return the results.
 
     ``checkpoints``: a folder where every recurrent network's training (Base, Seal, Troc,
     Xfer, per seed and length) is saved after each epoch and resumed from: the same command
-    started again after a stop goes on where it stopped.
+    started again after a stop goes on where it stopped. ``weights``: a folder where the
+    step-1 models trained here (Base, Seal, per seed) are written as estimator checkpoints.
 
     Data: the trocar training set of length ``L`` is ``L / segment_s`` simulated ``trocar``
     sessions of ``segment_s`` seconds (seeds ``seed + k``; the sets are nested, a longer set
@@ -181,7 +183,7 @@ def run_reproduction(config: ReproductionConfig, base: FreeSpaceModel | None = N
         # scored once too, so that its intervals do not count one network as several
         first = seed == config.training_seeds[0]
         if config.step1 is not None and (first or not once):
-            fits = train_step1(config, seed, sets.step1, device, log, checkpoints)
+            fits = train_step1(config, seed, sets.step1, device, log, checkpoints, weights)
             base, seal = fits.models["Base"], fits.models["Seal"]
             collected.step1.append(fits.fits)
         if first or not once:

@@ -18,6 +18,7 @@ import numpy as np
 import torch
 from pydantic import BaseModel, ConfigDict
 
+from wrenchd.models.estimator.checkpoint import save_result
 from wrenchd.models.estimator.correction import Corr, Xfer
 from wrenchd.models.estimator.correction_training import fit_corr, fit_xfer
 from wrenchd.models.estimator.free_space import FreeSpaceModel
@@ -63,9 +64,14 @@ def _checkpoint(folder: Path | None, name: str) -> Path | None:
 
 def train_step1(config: ReproductionConfig, seed: int,
                 sets: dict[str, tuple[list[Session], list[Session]]], device: str | None,
-                log: Callable[[str], None], checkpoints: Path | None = None) -> Step1Fits:
+                log: Callable[[str], None], checkpoints: Path | None = None,
+                weights: Path | None = None) -> Step1Fits:
     """Base and Seal trained with training seed ``seed`` on their free-motion sets,
-    early-stopped on the held-out sessions (resumed from ``checkpoints`` when given)."""
+    early-stopped on the held-out sessions (resumed from ``checkpoints`` when given).
+
+    ``weights``: a folder to write each trained model to as an estimator checkpoint
+    (``{name}-seed{seed}.pt``, its best weights per joint group with the held-out scores and
+    whether early stopping ended it), loadable wherever a step-1 checkpoint is."""
     st = config.step1
     models, fits = {}, {}
     for name, (train, held) in sets.items():
@@ -81,6 +87,11 @@ def train_step1(config: ReproductionConfig, seed: int,
                               epochs_run=res.validation["epochs_run"])
         log(f"seed {seed} {name}: {res.validation['epochs_run']} epochs in {seconds:.1f} s, "
             f"held-out score {res.validation['score']:.4f}")
+        if weights is not None:
+            weights.mkdir(parents=True, exist_ok=True)
+            save_result(weights / f"{name}-seed{seed}.pt", res)
+            log(f"seed {seed} {name}: weights in {weights / f'{name}-seed{seed}.pt'} "
+                f"({'converged' if res.validation.get('converged') else 'not converged'})")
     return Step1Fits(models=models, fits=fits)
 
 

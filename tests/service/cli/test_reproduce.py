@@ -7,6 +7,7 @@ import sys
 
 import pytest
 
+from wrenchd.models.estimator.checkpoint import load_checkpoint
 from wrenchd.service.studies.reproduction import AXES, CONFIGS, ReproductionResult
 
 
@@ -101,6 +102,15 @@ def test_paper_quick_records_patients_trials_seeds_intervals_and_both_floors(tmp
     assert saved == sorted([f"{n}-seed0.pt" for n in ("Base", "Seal")]
                            + [f"{n}-{tail}seed{k}.pt" for k in (0, 1) for n in ("Troc", "Xfer")
                               for tail in lengths])
+    # the trained step-1 models are written as checkpoints a --model option takes
+    from wrenchd.service.pipeline.step1 import load_step1
+
+    for name in ("Base", "Seal"):
+        step1 = load_step1(str(out / "weights" / f"{name}-seed0.pt"))
+        ck = load_checkpoint(out / "weights" / f"{name}-seed0.pt")
+        assert ck.kind == "free_space" and step1.model.config == ck.model.config
+        assert ck.validation["score"] == pytest.approx(r["step1"]["per_seed"][0][name]["score"])
+        assert ck.validation["converged"] == (ck.validation["epochs_run"] < ck.train_config.epochs)
     again = subprocess.run([sys.executable, "-m", "wrenchd", "reproduce", "--paper-quick",
                             "--out", str(out), "--threads", "1"], capture_output=True,
                            text=True, env={**os.environ, "OMP_NUM_THREADS": "1"}, timeout=300)
