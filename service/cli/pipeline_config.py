@@ -45,5 +45,5 @@ def common_options() -> argparse.ArgumentParser:
     common.add_argument("--config", help="pipeline settings (TOML/JSON; a daemon file works)")
     common.add_argument("--seed", type=int, default=None, help="adaptation seed")
     common.add_argument("--model", default="seal",
-                        help="step-1 model: shipped name (base, seal) or checkpoint")
+                        help="step-1 model: shipped name (base, seal, paper-base, paper-seal) or checkpoint")
     return common

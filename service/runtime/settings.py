@@ -153,7 +153,7 @@ class ArmConfig(BaseModel):
                                     "keys presets ros2dds and rmw_zenoh, else json)")
     frame_id: str = Field(default="psm_base", description="frame of the published wrench")
     model: str = Field(default="seal",
-                       description="step-1 weights: a shipped name (base, seal) or a checkpoint")
+                       description="step-1 weights: a shipped name (base, seal, paper-base, paper-seal) or a checkpoint")
     corr_checkpoint: str | None = Field(default=None,
                                         description="start from this Corr (e.g. a saved version)")
     keys: KeysConfig = Field(default_factory=KeysConfig)
