@@ -68,7 +68,12 @@ from wrenchd.service.studies.reproduction_scoring import (
     wrench_rmse,
 )
 from wrenchd.service.studies.reproduction_sets import ReproductionSets, build_sets
-from wrenchd.service.studies.reproduction_summary import criteria, floor_summary, summarise
+from wrenchd.service.studies.reproduction_summary import (
+    criteria,
+    floor_summary,
+    like_for_like,
+    summarise,
+)
 from wrenchd.service.studies.reproduction_training import (
     LengthTraining,
     fast_vs_paper,
@@ -187,9 +192,10 @@ def run_reproduction(config: ReproductionConfig, base: FreeSpaceModel | None = N
             base, seal = fits.models["Base"], fits.models["Seal"]
             collected.step1.append(fits.fits)
         if first or not once:
-            collected.add_step1(score_models(scorers, {"Base": (base, None),
-                                                       "Seal": (seal, None)},
-                                             step1_tables), config.lengths_s)
+            step1_scores = score_models(scorers, {"Base": (base, None), "Seal": (seal, None)},
+                                        step1_tables)
+            collected.add_step1(step1_scores, config.lengths_s)
+            log_in_domain(scorers, step1_scores, config.output_filter_hz is not None, seed, log)
         for length in config.lengths_s:
             data = [s.joint_states for s in sets.training[length]]
             training = train_length(config, seed, length, data, held, base, seal, device,
@@ -209,6 +215,18 @@ def run_reproduction(config: ReproductionConfig, base: FreeSpaceModel | None = N
                     config, base, data, sets.contact, wmap,
                     wrench_rmse(oracle_torques(sets.contact), sets.contact, wmap), log)
     return summarise_run(config, sets, scorers, collected, pretrained_info)
+
+
+def log_in_domain(scorers: Scorers, scores: ModelScores, filtered: bool, seed: int,
+                  log: Callable[[str], None]) -> None:
+    """Log each step-1 model's in-domain false force and its ratio to the raw oracle floor as
+    soon as it is scored (the run's first target), hours before the run's report."""
+    for name, per_trial in scores.step1_in_domain.items():
+        cell = summarise([per_trial], scorers.step1_in_domain[name].floors(), filtered)
+        force = (cell.unfiltered_force_rmse if cell.unfiltered_force_rmse is not None
+                 else cell.force_rmse)
+        log(f"seed {seed} {name} in domain: free-motion force RMSE {force:.3f} N over "
+            f"{cell.trials} trials, {like_for_like(cell)['raw']:.2f}x the raw oracle floor")
 
 
 def summarise_run(config: ReproductionConfig, sets: ReproductionSets, scorers: Scorers,
