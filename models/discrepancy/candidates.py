@@ -37,13 +37,22 @@ DRIFT_PARAM = {
     "joint_offset": "offset", "spring": "stiffness", "seal_friction": "fc",
     "cable_coupling": "motor_fc", "payload_mass": "mass_kg", "body_wall": "pressure_mmhg",
 }
-#: Payload hypotheses: carrying link -> point-mass position in its DH frame [m].
-PAYLOAD_SITES = {2: tuple(PayloadParams().position_m), 6: (0.0, 0.0, 0.0)}
-#: Joints a spring candidate may act on (0-based): the instrument's cable-driven roll and
-#: wrist (cable preload; WPI's identified K). Yaw and pitch carry no spring, and over their
-#: +-0.8 rad a spring ``k q + c`` and the gravity of a mass (``~ sin q``) are collinear
-#: (R^2 > 0.99 on the WPI trajectory), so one could not be told from the other there.
-SPRING_JOINTS = (3, 4, 5)
+#: Payload hypotheses: carrying link -> point-mass position in its DH frame [m] (the position
+#: a one-column site holds; link 2's and link 3's candidates fit it, see :func:`_payload`).
+#: Link 1 (the yaw link) is no site of its own: its gravity columns (first moments, yaw only)
+#: are spanned by link 2's, so a load there is named on link 2, at a point on the pitch axis.
+PAYLOAD_SITES = {2: tuple(PayloadParams().position_m), 3: (0.0, 0.0, 0.0), 6: (0.0, 0.0, 0.0)}
+#: Sites whose point mass is fitted with its position free: mass and first moments, four
+#: columns (the insertion stage: its origin moves with the insertion, so the mass itself acts
+#: on every joint it moves, and on the insertion joint through gravity along the tool axis).
+FREE_POSITION_SITES = (3,)
+#: Joints a spring candidate may act on (0-based): the insertion (a cable or hose pulled
+#: along the tool axis) and the instrument's cable-driven roll and wrist (cable preload; WPI's
+#: identified K). Yaw and pitch carry no spring, and over their +-0.8 rad a spring ``k q + c``
+#: and the gravity of a mass (``~ sin q``) are collinear (R^2 > 0.99 on the WPI trajectory), so
+#: one could not be told from the other there; on the insertion gravity goes with the pitch
+#: and yaw angles, not with the insertion, and a spring can be told from a load.
+SPRING_JOINTS = (2, 3, 4, 5)
 #: Stribeck velocities tried, as multiples of the library default per joint.
 STRIBECK_GRID = tuple(float(v) for v in np.geomspace(0.25, 4.0, 13))
 #: Seal presliding travels tried, as multiples of the library default.
@@ -242,12 +251,23 @@ def _payload(motion: Motion, regressor: np.ndarray, link: int) -> Candidate:
     Link 2 (the parallelogram) turns about the RCM, its frame's origin, so a mass there acts
     only through its first moment ``m c``: three columns (the regressor's ``mx, my, mz``)
     whose fit gives the load's direction, and ``mass = |m c| / |c_nominal|`` with the
-    nominal lever arm (the library default position, the WPI load's). Other sites are one
-    column, the point mass per kg at the fixed position. Rotational inertia of the point
-    mass (``m |c|^2``, ~6e-3 kg m^2 for 0.2 kg at 0.18 m) is left out of the link 2 columns.
+    nominal lever arm (the library default position, the WPI load's). The insertion stage
+    (link 3, :data:`FREE_POSITION_SITES`) moves its origin, so the mass shows apart from its
+    first moment: four columns ``m, m c``, giving the mass and ``c = m c / m``. Other sites
+    are one column, the point mass per kg at the fixed position. Rotational inertia of the
+    point mass (``m |c|^2``, ~6e-3 kg m^2 for 0.2 kg at 0.18 m) is left out of the
+    multi-column candidates.
     """
     position = np.asarray(PAYLOAD_SITES[link], float)
     block = regressor[:, :, 10 * (link - 1):10 * link]
+    if link in FREE_POSITION_SITES:
+        def free_to_params(b):
+            mass = float(b[0])
+            pos = np.asarray(b[1:4], float) / mass if mass > 1e-6 else position
+            return {"mass_kg": mass, "link": link, "position_m": [float(p) for p in pos]}
+        return Candidate("payload_mass", f"payload_mass@link{link}", block[:, :, 0:4].copy(),
+                         ["mass_kg", "m_cx", "m_cy", "m_cz"], free_to_params, [0],
+                         {"link": link}, [(0, 0.0)])
     if link == 2:
         lever = float(np.linalg.norm(position))
 
@@ -314,13 +334,15 @@ def build_candidates(motion: Motion, model: PhysicsModel, residual: np.ndarray,
     viscous_friction       ``dq_j`` on joint j                                     fv (6)
     stribeck_friction      ``exp(-(dq_j/vs_j)^2) sign(dq_j)``, vs_j profiled       fs (6), vs
     joint_offset           1 on joint j                                            offset (6)
-    spring                 ``q_j`` and 1 on roll and wrist (rest = -c / k)         stiffness, rest
+    spring                 ``q_j`` and 1 on insertion, roll, wrist (rest = -c/k)   stiffness, rest
     seal_friction          insertion and roll: LuGre bristle force per unit level   fc + fs_excess,
                            (presliding travel and static ratio profiled), and       sigma2 (insertion);
                            ``dq`` on insertion                                      sigma0 from travel
     body_wall              port stiffness and damping torques, default incision    k, damping
     payload_mass           link 2 (parallelogram): first moments ``m c`` (3        mass_kg,
-                           columns); link 6 (tip): point mass per kg at its origin  position_m
+                           columns); link 3 (insertion stage): ``m`` and ``m c``    position_m
+                           (4 columns); link 6 (tip): point mass per kg at its
+                           origin
     cable_coupling         ``C^T e_i tanh(m_i / 1e-3)``, ``C^T e_i m_i``, m = C dq   motor_fc, motor_fv
     drift                  ``(t - t0) / 3600 * d tau_E / d log p`` for each effect  rate_per_hour
                            E of the model and its level parameter p

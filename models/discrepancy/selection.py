@@ -32,6 +32,9 @@ BOOT_REPLICATES = 20
 BOOT_BLOCK_S = 1.0
 DUPLICATE_R2 = 0.99
 MAX_EFFECTS = 4
+#: Another candidate is listed as an alternative to a named effect when it reproduces that
+#: effect's fitted torque with this whitened R^2 or more (:func:`alternatives`).
+ALTERNATIVE_R2 = 0.9
 
 
 @dataclass
@@ -181,9 +184,43 @@ def select(st: Stacked, candidates: list[Candidate]) -> tuple[list[Named], list[
     Finally every named effect is re-tested against all the others (drop-one ``delta_bic``) and
     the list is ordered by that evidence.
 
+    Last, the named effects are fitted together; an effect whose coefficients turn unphysical
+    there (a free-position payload whose mass goes negative once an offset takes the constant
+    part it had absorbed) is refused and the selection runs again without it.
+
     Returns:
         (named effects ordered by evidence, the score table of every candidate at each step).
     """
+    refused: list[dict] = []
+    pool = list(candidates)
+    while True:
+        named, table = _select(st, pool)
+        bad = _unphysical_together(st, named)
+        if bad is None:
+            return named, table + refused
+        nm, why = bad
+        refused.append({"step": "joint fit", "candidate": nm.candidate.label, "delta_bic": None,
+                        "note": f"{why} once fitted with the other named effects; "
+                                "selected again without it"})
+        pool = [c for c in pool if c is not nm.candidate]
+
+
+def _unphysical_together(st: Stacked, named: list[Named]) -> tuple[Named, str] | None:
+    """The first named effect whose jointly fitted coefficients are inadmissible, and why."""
+    for nm in named:
+        xc = st.x(nm.candidate, nm.keep)
+        full_b, full_s = np.zeros(nm.candidate.columns.shape[2]), np.zeros(nm.candidate.columns.shape[2])
+        full_b[nm.keep], full_s[nm.keep] = nm.beta, nm.bse
+        unit = np.zeros(nm.candidate.columns.shape[2])
+        unit[nm.keep] = np.sqrt(np.sum(xc**2, axis=0) / st.n)
+        why = nm.candidate.inadmissible(full_b, full_s, unit)
+        if why:
+            return nm, why
+    return None
+
+
+def _select(st: Stacked, candidates: list[Candidate]) -> tuple[list[Named], list[dict]]:
+    """:func:`select`'s greedy forward pass, its re-check and the joint fit."""
     named: list[Named] = []
     table: list[dict] = []
     pool = list(candidates)          # not named yet, all re-scored at every step
@@ -293,3 +330,48 @@ def heldout_prediction(st: Stacked, named: list[Named]) -> np.ndarray:
         for tr, te in st.folds:
             pred[te] = x[te] @ sm.OLS(st.y[tr], x[tr], hasconst=False).fit().params
     return pred.reshape(st.n, 6) / st.sw
+
+
+@dataclass(frozen=True)
+class Alternative:
+    """Another candidate's best fit of a named effect's torque: ``r2`` (whitened) and
+    ``misfit`` (what it leaves of the effect, RMS in noise floors on its worst joint)."""
+
+    label: str
+    r2: float
+    misfit: float
+
+    @property
+    def indistinguishable(self) -> bool:
+        """The alternative leaves less of the effect than an effect must reach to be named
+        (``MIN_SIZE`` noise floors): on this motion the data cannot tell the two apart."""
+        return self.misfit < MIN_SIZE
+
+
+def alternatives(st: Stacked, named: list[Named], candidates: list[Candidate]
+                 ) -> dict[str, list[Alternative]]:
+    """For each named effect, the other candidates that reproduce its fitted torque with a
+    whitened ``R^2 >= ALTERNATIVE_R2``, best first: where the workflow names one place or
+    kind, these say which others the motion barely tells it from (a load on the yaw link
+    from one on the parallelogram's pitch axis; a spring from an offset over a short stroke).
+    """
+    out: dict[str, list[Alternative]] = {}
+    for nm in named:
+        target = st.x(nm.candidate, nm.keep) @ nm.beta
+        total = float(target @ target)
+        found = []
+        for cand in candidates:
+            if cand.label == nm.candidate.label or total <= 0.0:
+                continue
+            x = st.x(cand)
+            x = x[:, np.any(x != 0.0, axis=0)]
+            if x.shape[1] == 0:
+                continue
+            coef, *_ = np.linalg.lstsq(x, target, rcond=None)
+            left = target - x @ coef
+            r2 = 1.0 - float(left @ left) / total
+            if r2 >= ALTERNATIVE_R2:
+                misfit = float(np.max(np.sqrt(np.mean(left.reshape(st.n, 6) ** 2, axis=0))))
+                found.append(Alternative(cand.label, r2, misfit))
+        out[nm.candidate.label] = sorted(found, key=lambda a: -a.r2)
+    return out

@@ -18,7 +18,10 @@ The JSON contract (:meth:`DiscrepancyResult.to_json`)::
 
 ``disagreements`` lists the joints whose residual RMS exceeds ``DISAGREE_RATIO`` times the
 noise floor; ``effects`` is ordered by evidence (most negative ``delta_bic`` first) and empty
-when nothing has real support; joints are numbered from 1. Extra keys (``joints``,
+when nothing has real support; joints are numbered from 1. Each effect lists its
+``alternatives``: other candidates (kinds or places) that reproduce its fitted torque almost
+as well, and ``told_apart`` is false when one of them leaves less of it than an effect must
+reach to be named: the motion cannot tell the two apart. Extra keys (``joints``,
 ``candidates``, ``gap.noise_floor``, ``gap.excess_shrink``...) add detail without changing
 these.
 """
@@ -33,7 +36,14 @@ import numpy as np
 from wrenchd.models.discrepancy.candidates import NOT_CANDIDATES, build_candidates
 from wrenchd.models.discrepancy.merging import merge_effects
 from wrenchd.models.discrepancy.residual import find, noise_floor
-from wrenchd.models.discrepancy.selection import Named, Stacked, heldout_prediction, select
+from wrenchd.models.discrepancy.selection import (
+    Alternative,
+    Named,
+    Stacked,
+    alternatives,
+    heldout_prediction,
+    select,
+)
 from wrenchd.models.errors import DataError
 from wrenchd.models.identification.differentiation import smoothed_acceleration, zero_phase_velocity
 from wrenchd.models.physics.model import PhysicsModel
@@ -78,6 +88,8 @@ class DiscrepancyResult:
     updated_model: PhysicsModel
     candidates: list[dict]
     notes: list[str] = field(default_factory=list)
+    #: label of a named effect -> other candidates that reproduce its torque (best first)
+    alternatives: dict[str, list[Alternative]] = field(default_factory=dict)
 
     @property
     def before_rmse(self) -> np.ndarray:
@@ -108,6 +120,11 @@ class DiscrepancyResult:
                              "folds_in_favour": ev.folds_in_favour, "size_noise_floors": ev.size,
                              "entry_delta_bic": ev.entry_delta_bic},
                 "rms_torque": [float(v) for v in np.sqrt(np.mean(tau**2, axis=0))],
+                "alternatives": [{"label": a.label, "r2": a.r2, "misfit_noise_floors": a.misfit,
+                                  "indistinguishable": a.indistinguishable}
+                                 for a in self.alternatives.get(c.label, [])],
+                "told_apart": not any(a.indistinguishable
+                                      for a in self.alternatives.get(c.label, [])),
             })
         return out
 
@@ -158,6 +175,7 @@ def run_discrepancy(model: PhysicsModel, t: np.ndarray, q: np.ndarray, dq: np.nd
     cands = build_candidates(motion, model, residual, floor, regressor)
     st = Stacked(residual, floor, t, seed)
     named, table = select(st, cands)
+    alts = alternatives(st, named, cands)
     torques = {nm.candidate.label: nm.candidate.torque(nm.full_beta()) for nm in named}
     pred = heldout_prediction(st, named)
     updated, notes = merge_effects(
@@ -168,4 +186,4 @@ def run_discrepancy(model: PhysicsModel, t: np.ndarray, q: np.ndarray, dq: np.nd
     notes.append("velocity from positions (zero phase) on joints "
                  f"{[int(j) + 1 for j in np.flatnonzero(from_position)]}, recorded elsewhere")
     return DiscrepancyResult(t, q, dq, ddq, residual, floor, findings, named, torques, pred,
-                             updated, table, notes)
+                             updated, table, notes, alts)

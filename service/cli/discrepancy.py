@@ -41,7 +41,10 @@ def discrepancy(args: argparse.Namespace) -> int:
             f.write(payload_markdown(payloads))
     for p in payloads:
         print(f"payload at {p['link']} {p['point_m']}: {1000 * p['mass_kg']:.1f} g")
-    named = ", ".join(f"{e['label']} {e['joints']}" for e in out["effects"]) or "nothing"
+    named = ", ".join(f"{e['label']} {e['joints']}" + ("" if e["told_apart"] else " (cannot be told "
+                      "from " + ", ".join(a["label"] for a in e["alternatives"]
+                                          if a["indistinguishable"]) + ")")
+                      for e in out["effects"]) or "nothing"
     print(f"disagreeing joints: {[d['joint'] for d in out['disagreements']] or 'none'}; "
           f"named: {named}; held-out excess removed {100 * out['gap']['excess_shrink']:.0f} %; "
           f"{seconds:.1f} s")

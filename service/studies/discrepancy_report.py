@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from wrenchd.models.discrepancy.candidates import FREE_POSITION_SITES
 from wrenchd.models.discrepancy.workflow import DiscrepancyResult
 from wrenchd.models.series import JOINT_NAMES
 from wrenchd.service.provenance import RunMeter, stamp
@@ -105,6 +106,32 @@ def _fmt(v) -> str:
     return str(v)
 
 
+#: Distances from the RCM [m] at which a parallelogram payload's mass is read out.
+LEVERS_M = (0.10, 0.15, 0.20, 0.25)
+
+
+def _trade_off(effect: dict[str, Any]) -> list[str]:
+    """How mass and place trade off for a payload whose position was free: on the
+    parallelogram (link 2, turning about the RCM) the data fix only the first moment, so the
+    mass goes as one over the distance from the RCM; on the insertion stage mass and point are
+    both fitted, and the mass's standard error says how well."""
+    if effect["name"] != "payload_mass":
+        return []
+    p, c = effect["params"], effect["coefficients"]
+    if p["link"] == 2:
+        moment = float(np.linalg.norm([c["m_cx"], c["m_cy"], c["m_cz"]]))
+        at = ", ".join(f"{100 * r:.0f} cm: {1000 * moment / r:.0f} g" for r in LEVERS_M)
+        return [f"- mass and place: the data fix the first moment |m c| = {1000 * moment:.1f} "
+                f"g m, not the mass; at a distance r from the RCM the mass is |m c| / r ({at}; "
+                f"the reported mass is at the nominal {100 * np.linalg.norm(p['position_m']):.1f} "
+                "cm). With the point known, `--payload-at` gives the mass."]
+    if p["link"] in FREE_POSITION_SITES and "mass_kg" in effect["std_errors"]:
+        return [f"- mass and place: both fitted; mass {1000 * p['mass_kg']:.1f} g +- "
+                f"{1000 * effect['std_errors']['mass_kg']:.1f} g (1 standard error, "
+                "residuals taken as white)"]
+    return []
+
+
 def write_report(res: DiscrepancyResult, out: dict[str, Any], folder: Path, *, title: str,
                  measured: str, model: str, seconds: float | None = None) -> Path:
     """Write ``report.md`` and the figures into ``folder``; returns the Markdown path."""
@@ -141,7 +168,13 @@ def write_report(res: DiscrepancyResult, out: dict[str, Any], folder: Path, *, t
                   f"{ev['entry_delta_bic']:.1f}, bootstrap stability {ev['stability']:.2f}, "
                   f"size {ev['size_noise_floors']:.2f} noise floors",
                   "- parameters: " + ", ".join(f"`{k2}` = {_fmt(v)}" for k2, v in e["params"].items()),
-                  "- fitted torque RMS per joint: " + _fmt(e["rms_torque"]), "",
+                  "- fitted torque RMS per joint: " + _fmt(e["rms_torque"]),
+                  *_trade_off(e),
+                  "- could also be: " + (", ".join(
+                      f"`{a['label']}` (R^2 {a['r2']:.3f}, leaves {a['misfit_noise_floors']:.2f} "
+                      f"noise floors{': cannot be told apart here' if a['indistinguishable'] else ''})"
+                      for a in e["alternatives"]) or "nothing else (no other candidate reproduces "
+                      "its torque with R^2 >= 0.9)"), "",
                   f"![{e['label']}]({fig})", ""]
     gap = out["gap"]
     lines += ["", "## The gap (held out: five contiguous folds, each predicted by a fit on the others)", "",

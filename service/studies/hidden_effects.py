@@ -27,6 +27,7 @@ from wrenchd.adapters.sim.scenarios import FREE_SPACE_EFFECTS, FREE_SPACE_WORKSP
 from wrenchd.adapters.sim.sensors import SensorConfig
 from wrenchd.adapters.sim.simulator import simulate
 from wrenchd.adapters.sim.trajectory import FourierTrajectory
+from wrenchd.models.discrepancy.candidates import SPRING_JOINTS
 from wrenchd.models.discrepancy.workflow import DiscrepancyResult, excess_shrink
 from wrenchd.models.physics.effects import EFFECTS
 from wrenchd.models.physics.model import PhysicsModel
@@ -65,13 +66,16 @@ def sample_effect(name: str, rng: np.random.Generator, duration_s: float) -> dic
     stribeck_friction      fs = default x U(0.5, 2) (yaw, pitch, insertion), vs = default x U(0.5, 2)
     joint_offset           |offset| U(0.02, 0.3) N m or N on joints 1-3, U(0.003, 0.03) N m on 4-6
                            (WPI ``Fo``), random sign
-    spring                 roll and wrist: stiffness U(0.002, 0.02) N m/rad (WPI wrist K ~0.002 and
-                           10x), rest U(-0.3, 0.3) rad
+    spring                 half the cases roll and wrist: stiffness U(0.002, 0.02) N m/rad (WPI wrist
+                           K ~0.002 and 10x), rest U(-0.3, 0.3) rad; the other half the insertion (a
+                           cable or hose pulled along the tool axis; assumed, no published figure):
+                           U(5, 50) N/m, 0.5-5 N over half the stroke, rest U(0.03, 0.22) m
     seal_friction          insertion fc U(0.25, 3) N (van den Dobbelsteen 2007), fs_excess and the
                            roll values scaled alike, sigma2 default x U(0.5, 2)
     body_wall              insufflation U(8, 16) mmHg, other parameters default
-    payload_mass           link 2 (parallelogram, WPI load position) U(0.05, 0.3) kg, or the
-                           instrument tip (link 6 origin) U(0.05, 0.2) kg
+    payload_mass           a third each: link 2 (parallelogram, WPI load position) U(0.05, 0.3) kg;
+                           the insertion stage (link 3) U(0.05, 0.3) kg at U(-0.05, 0.05) m on each
+                           axis of its frame; the instrument tip (link 6 origin) U(0.05, 0.2) kg
     cable_coupling         motor_fc U(0.002, 0.008) N m, motor_fv U(0.0015, 0.006) N m s/rad
     drift                  Coulomb friction wear, linear: fc grows by U(30, 100) % over the recording
     =====================  ==========================================================================
@@ -88,8 +92,11 @@ def sample_effect(name: str, rng: np.random.Generator, duration_s: float) -> dic
     if name == "spring":
         k = np.zeros(6)
         rest = np.zeros(6)
-        k[3:] = rng.uniform(0.002, 0.02, 3)
-        rest[3:] = rng.uniform(-0.3, 0.3, 3)
+        if rng.random() < 0.5:
+            k[3:] = rng.uniform(0.002, 0.02, 3)
+            rest[3:] = rng.uniform(-0.3, 0.3, 3)
+        else:
+            k[2], rest[2] = rng.uniform(5.0, 50.0), rng.uniform(0.03, 0.22)
         return {"name": name, "params": {"stiffness": k.tolist(), "rest": rest.tolist()}}
     if name == "seal_friction":
         s = rng.uniform(0.25, 3.0)          # insertion fc [N]; default 1 N
@@ -100,8 +107,13 @@ def sample_effect(name: str, rng: np.random.Generator, duration_s: float) -> dic
     if name == "body_wall":
         return {"name": name, "params": {"pressure_mmhg": float(rng.uniform(8.0, 16.0))}}
     if name == "payload_mass":
-        if rng.random() < 0.5:
+        site = rng.integers(3)
+        if site == 0:
             return {"name": name, "params": {"mass_kg": float(rng.uniform(0.05, 0.3)), "link": 2}}
+        if site == 1:
+            return {"name": name, "params": {
+                "mass_kg": float(rng.uniform(0.05, 0.3)), "link": 3,
+                "position_m": [float(v) for v in rng.uniform(-0.05, 0.05, 3)]}}
         return {"name": name, "params": {"mass_kg": float(rng.uniform(0.05, 0.2)), "link": 6,
                                          "position_m": [0.0, 0.0, 0.0]}}
     if name == "cable_coupling":
@@ -176,7 +188,7 @@ def _checks(spec: dict[str, Any], fitted: dict[str, Any], tau_rms: np.ndarray,
     elif name == "joint_offset":
         per_joint("offset")
     elif name == "spring":
-        per_joint("stiffness", range(3, 6))
+        per_joint("stiffness", SPRING_JOINTS)
     elif name == "seal_friction":
         # the sliding level at rest, fc + fs_excess, is what the data fix; the split between
         # them rests on the shape of the breakaway hump and is reported, not checked

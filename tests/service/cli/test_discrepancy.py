@@ -9,6 +9,7 @@ import os
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 from wrenchd.models.physics.model import PhysicsModel
@@ -46,7 +47,12 @@ def test_real_load_is_localised_named_and_the_gap_shrinks(tmp_path, wpi_data):
     updated = PhysicsModel.load(res["updated_model"])
     assert "payload_mass" in {e.name for e in updated.effects.values()}
     assert (report / "report.md").is_file() and (report / "gap.png").stat().st_size > 1000
-    assert "payload_mass" in (report / "report.md").read_text()
+    text = (report / "report.md").read_text()
+    assert "payload_mass" in text
+    # the position was free: the report says the data fix the first moment, not the mass
+    moment = np.linalg.norm([first["coefficients"][k] for k in ("m_cx", "m_cy", "m_cz")])
+    assert f"|m c| = {1000 * moment:.1f} g m" in text
+    assert f"15 cm: {1000 * moment / 0.15:.0f} g" in text
 
 
 def test_hidden_payload_in_an_mcap_session_and_bad_input(tmp_path):
