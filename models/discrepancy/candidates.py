@@ -37,11 +37,17 @@ DRIFT_PARAM = {
     "joint_offset": "offset", "spring": "stiffness", "seal_friction": "fc",
     "cable_coupling": "motor_fc", "payload_mass": "mass_kg", "body_wall": "pressure_mmhg",
 }
-#: Payload hypotheses: carrying link -> point-mass position in its DH frame [m] (the position
-#: a one-column site holds; link 2's and link 3's candidates fit it, see :func:`_payload`).
-#: Link 1 (the yaw link) is no site of its own: its gravity columns (first moments, yaw only)
-#: are spanned by link 2's, so a load there is named on link 2, at a point on the pitch axis.
+#: Payload hypotheses: carrying link -> point-mass position in its DH frame [m]: the point a
+#: one-column site holds, the nominal lever arm of a first-moment site
+#: (:data:`FIRST_MOMENT_SITES`); a free-position site fits its own (see :func:`_payload`).
+#: The yaw link (link 1) is no site: its first moments act on yaw alone, one of the two is
+#: also the parallelogram's, and the other one, offered as a candidate, took the yaw part of
+#: the real WPI parallelogram loads (a link that translates, which no serial-chain site
+#: represents exactly) and split each into two payloads. A yaw-link load is named on link 2.
 PAYLOAD_SITES = {2: tuple(PayloadParams().position_m), 3: (0.0, 0.0, 0.0), 6: (0.0, 0.0, 0.0)}
+#: Sites whose origin does not move (links turning about the RCM): a mass there acts only
+#: through its first moment ``m c``, and the mass is read at the nominal lever arm.
+FIRST_MOMENT_SITES = (2,)
 #: Sites whose point mass is fitted with its position free: mass and first moments, four
 #: columns (the insertion stage: its origin moves with the insertion, so the mass itself acts
 #: on every joint it moves, and on the insertion joint through gravity along the tool axis).
@@ -53,6 +59,8 @@ FREE_POSITION_SITES = (3,)
 #: one could not be told from the other there; on the insertion gravity goes with the pitch
 #: and yaw angles, not with the insertion, and a spring can be told from a load.
 SPRING_JOINTS = (2, 3, 4, 5)
+#: Effects whose columns are one parameter per joint, counted only where supported.
+PER_COLUMN = ("coulomb_friction", "viscous_friction", "stribeck_friction", "joint_offset")
 #: Stribeck velocities tried, as multiples of the library default per joint.
 STRIBECK_GRID = tuple(float(v) for v in np.geomspace(0.25, 4.0, 13))
 #: Seal presliding travels tried, as multiples of the library default.
@@ -93,6 +101,9 @@ class Candidate:
     #: for candidates whose shape is profiled on the residual (Stribeck velocity, seal
     #: travel and static ratio): rebuild on another residual (N, 6)
     rebuild: Callable[[np.ndarray], "Candidate"] | None = None
+    #: one column per joint, each a separate parameter (friction, offsets, springs): the
+    #: selection counts only the columns with support
+    per_column: bool = False
 
     def inadmissible(self, beta: np.ndarray, bse: np.ndarray, size: np.ndarray,
                      sigmas: float = 3.0, material: float = 0.2) -> str | None:
@@ -268,7 +279,7 @@ def _payload(motion: Motion, regressor: np.ndarray, link: int) -> Candidate:
         return Candidate("payload_mass", f"payload_mass@link{link}", block[:, :, 0:4].copy(),
                          ["mass_kg", "m_cx", "m_cy", "m_cz"], free_to_params, [0],
                          {"link": link}, [(0, 0.0)])
-    if link == 2:
+    if link in FIRST_MOMENT_SITES:
         lever = float(np.linalg.norm(position))
 
         def to_params(b):
@@ -375,6 +386,7 @@ def build_candidates(motion: Motion, model: PhysicsModel, residual: np.ndarray,
         *_drifts(motion, model, floor),
     ]
     for cand in cands:
+        cand.per_column = cand.name in PER_COLUMN
         if not cand.nonneg:
             cand.nonneg = _sign_constraints(cand, model)
     for cand in cands:
@@ -387,6 +399,7 @@ def _rebuilder(name: str, motion: Motion, model: PhysicsModel, weights: np.ndarr
     def rebuild(residual: np.ndarray) -> Candidate:
         cand = _stribeck(motion, residual, weights) if name == "stribeck_friction" \
             else _seal(motion, residual)
+        cand.per_column = cand.name in PER_COLUMN
         cand.nonneg = _sign_constraints(cand, model)
         cand.rebuild = rebuild
         return cand

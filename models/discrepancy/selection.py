@@ -32,6 +32,9 @@ BOOT_REPLICATES = 20
 BOOT_BLOCK_S = 1.0
 DUPLICATE_R2 = 0.99
 MAX_EFFECTS = 4
+#: A column of a per-joint candidate counts only where its coefficient's t statistic reaches
+#: this (:func:`_supported`).
+MIN_T = 3.0
 #: Another candidate is listed as an alternative to a named effect when it reproduces that
 #: effect's fitted torque with this whitened R^2 or more (:func:`alternatives`).
 ALTERNATIVE_R2 = 0.9
@@ -121,6 +124,22 @@ def _new_columns(st: Stacked, cand: Candidate, xa: np.ndarray | None) -> np.ndar
                 continue
         keep.append(i)
     return np.asarray(keep, dtype=int)
+
+
+def _supported(st: Stacked, xa: np.ndarray | None, cand: Candidate, keep: np.ndarray
+               ) -> np.ndarray:
+    """``keep`` less the columns whose coefficient has no support in the full-data fit
+    (``|t| < MIN_T``), the ``main`` ones of a multi-column shape kept together: a per-joint
+    effect acting on one joint is then scored as one parameter, not six, and competes fairly
+    with a smaller candidate of another kind that explains the same torque."""
+    if keep.size <= 1 or not cand.per_column:
+        return keep
+    xc = st.x(cand, keep)
+    x = xc if xa is None else np.hstack([xa, xc])
+    fit = sm.OLS(st.y, x, hasconst=False).fit()
+    t = np.abs(fit.tvalues[-keep.size:])
+    pruned = keep[t >= MIN_T]
+    return pruned if pruned.size else keep[[int(np.argmax(t))]]
 
 
 def _stability(st: Stacked, xa: np.ndarray | None, xc: np.ndarray) -> float:
@@ -252,6 +271,7 @@ def _step(st: Stacked, named: list[Named], active: list[Candidate], step: int,
             table.append({"step": step + 1, "candidate": cand.label, "delta_bic": None,
                           "note": "spanned by effects already named"})
             continue
+        keep = _supported(st, xa, cand, keep)
         xc = st.x(cand, keep)
         per_fold = _heldout_bic(st, xc if xa is None else np.hstack([xa, xc])) - base
         scored.append((float(per_fold.sum()), int(np.sum(per_fold < 0)), cand, keep, xc))

@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from wrenchd.models.discrepancy.candidates import FREE_POSITION_SITES
+from wrenchd.models.discrepancy.candidates import FIRST_MOMENT_SITES, FREE_POSITION_SITES
 from wrenchd.models.discrepancy.workflow import DiscrepancyResult
 from wrenchd.models.series import JOINT_NAMES
 from wrenchd.service.provenance import RunMeter, stamp
@@ -112,13 +112,13 @@ LEVERS_M = (0.10, 0.15, 0.20, 0.25)
 
 def _trade_off(effect: dict[str, Any]) -> list[str]:
     """How mass and place trade off for a payload whose position was free: on the
-    parallelogram (link 2, turning about the RCM) the data fix only the first moment, so the
+    parallelogram (turning about the RCM) the data fix only the first moment, so the
     mass goes as one over the distance from the RCM; on the insertion stage mass and point are
     both fitted, and the mass's standard error says how well."""
     if effect["name"] != "payload_mass":
         return []
     p, c = effect["params"], effect["coefficients"]
-    if p["link"] == 2:
+    if p["link"] in FIRST_MOMENT_SITES:
         moment = float(np.linalg.norm([c["m_cx"], c["m_cy"], c["m_cz"]]))
         at = ", ".join(f"{100 * r:.0f} cm: {1000 * moment / r:.0f} g" for r in LEVERS_M)
         return [f"- mass and place: the data fix the first moment |m c| = {1000 * moment:.1f} "

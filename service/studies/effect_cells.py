@@ -35,16 +35,18 @@ import numpy as np
 from wrenchd.adapters.sim.scenarios import FREE_SPACE_EFFECTS, FREE_SPACE_WORKSPACE
 from wrenchd.adapters.sim.simulator import simulate
 from wrenchd.adapters.sim.trajectory import FourierTrajectory
+from wrenchd.models.discrepancy.candidates import PAYLOAD_SITES
 from wrenchd.models.discrepancy.workflow import DiscrepancyResult
-from wrenchd.models.physics.effects.payload import PayloadParams
 from wrenchd.models.physics.model import PhysicsModel
 from wrenchd.models.series import Session
 from wrenchd.service.studies.hidden_effects import NOISE_STD
 
-#: Payload positions per carrying link, in its DH frame [m]: the yaw link at a point off its
-#: axis, the parallelogram at the WPI load's place, the insertion stage at a point drawn per
-#: run (:func:`cell_spec`), the tip at its origin.
-PAYLOAD_POINTS = {1: (0.0, 0.05, 0.05), 2: tuple(PayloadParams().position_m), 6: (0.0, 0.0, 0.0)}
+#: Payload positions per carrying link, in its DH frame [m]: the yaw link 10 cm from its
+#: origin in a direction with both of its first moments, the parallelogram and the tip at
+#: their candidates' points (:data:`PAYLOAD_SITES`: on the parallelogram only the first
+#: moment shows, and the mass is read at that lever), the insertion stage at a point drawn
+#: per run (:func:`cell_spec`).
+PAYLOAD_POINTS = {1: (0.06, 0.08, 0.0), **{link: PAYLOAD_SITES[link] for link in (2, 6)}}
 #: The cells: (effect kind, place); places are links for payloads, joints (1-based) else.
 CELLS: tuple[tuple[str, int], ...] = (
     *(("payload_mass", link) for link in (1, 2, 3, 6)),
