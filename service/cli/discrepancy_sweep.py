@@ -20,7 +20,8 @@ def discrepancy_sweep(args: argparse.Namespace) -> int:
         s = data["summary"]
         print("cells named right on >= 90 % of runs: " + ", ".join(
             f"{m}x {n} of {s['cells']}" for m, n in s["cells_right_90pct"].items())
-            + f" -> {Path(args.out) / 'effect-cells.md'}")
+            + f"; controls named something {s['controls_named_something']} of "
+            f"{s['controls']} -> {Path(args.out) / 'effect-cells.md'}")
         return 0
     return hidden_effect_sweep(Path(args.out), args.seeds, args.duration, args.pairs_seeds,
                                args.effects, args.none_seeds)

@@ -63,6 +63,9 @@ SIZE_TOLERANCE = 0.2
 FIRST_SEED = 9000
 #: The classes of :func:`classify`, in the confusion table's order.
 CLASSES = ("right", "size off", "wrong place", "wrong kind", "not named")
+#: The kind of the control runs: nothing added, nothing should be named (one per seed and
+#: multiple of the cells, so as many as a cell has).
+CONTROL = "nothing"
 #: The parameter a per-joint cell sets, per kind.
 PER_JOINT_PARAM = {"spring": "stiffness", "joint_offset": "offset",
                    "coulomb_friction": "fc", "viscous_friction": "fv"}
@@ -110,14 +113,19 @@ def make_cell_case(kind: str, place: int, multiple: float, seed: int,
     root = np.random.SeedSequence([seed, 9])
     traj_seed, param_seed, sensor_seed = root.spawn(3)
     rng = np.random.default_rng(param_seed)
-    spec = cell_spec(kind, place, 1.0, rng)
+    control = kind == CONTROL
+    spec = {} if control else cell_spec(kind, place, 1.0, rng)
     given_effects = copy.deepcopy(FREE_SPACE_EFFECTS)
     truth = PhysicsModel.from_dict({"description": f"cell {kind}@{place}",
-                                    "effects": copy.deepcopy(given_effects) + [spec]})
+                                    "effects": copy.deepcopy(given_effects)
+                                    + ([] if control else [spec])})
     given = PhysicsModel.from_dict({"description": "given model", "effects": given_effects})
     trajectory = FourierTrajectory(FREE_SPACE_WORKSPACE, np.random.default_rng(traj_seed),
                                    duration_s, freq_hz=(0.05, 0.4))
     session = simulate(truth, trajectory, duration_s, sensor_seed)
+    if control:
+        zero = np.zeros_like(session.joint_states.effort)
+        return CellCase(kind, place, 0.0, seed, spec, 0.0, -1, given, session, zero)
     unit = session.truth.effects["cell"]
     in_floors = np.sqrt(np.mean(unit**2, axis=0)) / NOISE_STD
     strongest = int(np.argmax(in_floors))
@@ -144,6 +152,8 @@ def classify(case: CellCase, result: DiscrepancyResult) -> dict[str, Any]:
     row: dict[str, Any] = {"kind": case.kind, "place": case.place, "multiple": case.multiple,
                            "seed": case.seed, "value": case.value,
                            "named": [e["label"] for e in effects]}
+    if case.kind == CONTROL:
+        return {**row, "class": "right" if not effects else "named something"}
     if not effects:
         return {**row, "class": "not named"}
     first = effects[0]
@@ -187,6 +197,8 @@ def effect_cell_study(out, seeds: int, duration: float, cells=None, multiples=MU
     out.mkdir(parents=True, exist_ok=True)
     cells = list(cells or CELLS)
     plan = [(k, p, m, FIRST_SEED + s) for k, p in cells for m in multiples for s in range(seeds)]
+    n_controls = seeds * len(multiples)
+    plan += [(CONTROL, 0, 0.0, FIRST_SEED + 500 + s) for s in range(n_controls)]
     rows = []
     start = time.perf_counter()
     for i, (kind, place, mult, seed) in enumerate(plan, start=1):
@@ -199,7 +211,8 @@ def effect_cell_study(out, seeds: int, duration: float, cells=None, multiples=MU
         rows.append(row)
         log(f"[{i}/{len(plan)}] {kind}@{place} x{mult:g} seed {seed}: {row['class']} "
             f"(named {row['named']})")
-    table = confusion(rows)
+    controls = [r for r in rows if r["kind"] == CONTROL]
+    table = confusion([r for r in rows if r["kind"] != CONTROL])
     total = time.perf_counter() - start
     right = {cell: {m: c["right"] / max(sum(c.values()), 1) for m, c in by.items()}
              for cell, by in table.items()}
@@ -208,6 +221,8 @@ def effect_cell_study(out, seeds: int, duration: float, cells=None, multiples=MU
                "cells": len(cells), "runs": len(rows),
                "cells_right_90pct": {f"{m:g}": sum(right[c].get(f"{m:g}", 0) >= 0.9 for c in right)
                                      for m in multiples},
+               "controls": len(controls),
+               "controls_named_something": sum(r["class"] != "right" for r in controls),
                "total_s": total, "machine": f"{platform.machine()}, {os.cpu_count()} cores"}
     data = {"summary": summary, "confusion": table, "right_rate": right, "runs": rows,
             PROVENANCE_KEY: provenance(run=meter)}
@@ -234,7 +249,8 @@ def cells_markdown(data: dict[str, Any], out) -> str:
              f"{100 * s['size_tolerance']:.0f} %.", "",
              "Cells named right on at least 90 % of their runs: "
              + ", ".join(f"{m}x: {s['cells_right_90pct'][m]} of {s['cells']}" for m in mults)
-             + ".", "",
+             + f". Controls (nothing added, seeds from {s['first_seed'] + 500}): "
+             f"{s['controls_named_something']} of {s['controls']} named something.", "",
              "| cell | " + " | ".join(f"{m}x: right / size off / wrong place / wrong kind / "
                                       "not named" for m in mults) + " |",
              "|---|" + "---|" * len(mults)]

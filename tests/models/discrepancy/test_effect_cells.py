@@ -65,6 +65,8 @@ def test_friction_on_the_wrist_pitch_is_named_and_flagged_as_the_cable_coupling_
 def test_the_study_writes_its_confusion_table(tmp_path):
     data = effect_cell_study(tmp_path, 1, 30.0, cells=[("joint_offset", 2)], multiples=(5.0,),
                              log=lambda _: None)
+    assert data["summary"]["controls"] == 1                 # one per seed and multiple
+    assert data["summary"]["controls_named_something"] == 0
     saved = json.loads((tmp_path / "effect-cells.json").read_text())
     assert saved["confusion"] == data["confusion"]
     counts = data["confusion"]["joint_offset@2"]["5"]
