@@ -108,6 +108,9 @@ class Adapter:
         self._trocar_until: float | None = None   # the wall's physics is fitted until then
         self.rounds = 0
         self.accepted = 0
+        self.skipped = 0          # rounds due but skipped: nothing offered since the last
+        self._seen_at_round = -1  # ``seen`` when the last round ran
+        self._refused = 0         # rounds in a row whose candidate was refused
         self.body_wall = BodyWallTracker(c.body_wall)
         self._carried_segment = 0           # the latest segment the buffer was carried into
 
@@ -206,6 +209,7 @@ class Adapter:
         self._eager_until = now + self.config.eager_s
         self._change_until = self._eager_until if kind == "pressure" else -np.inf
         self._next_round = now
+        self._refused = 0
 
     def _forget_instrument(self) -> None:
         """Drop the training data of the instrument that left: the rings, the reservoir's
@@ -259,6 +263,7 @@ class Adapter:
         within = now < self._change_until    # still adapting to the latest change
         self._eager_until = now + self.config.eager_s
         self._next_round = now
+        self._refused = 0
         self._holdout.clear()
         if self.config.drift_carry_over and self.config.body_wall.enabled and not within:
             if self._carry_over_drift(t - self.config.drift_lead_s):
@@ -434,17 +439,35 @@ class Adapter:
         w2[...] = solved[:-1]
         b2[...] = solved[-1]
 
+    def _interval(self, eager: bool) -> float:
+        """Time to the next round [s]: ``eager_interval_s`` while eager; else ``interval_s``,
+        doubled per refused round past ``backoff_after`` in a row, up to ``backoff_max``
+        times."""
+        c = self.config
+        if eager:
+            return c.eager_interval_s
+        over = self._refused - c.backoff_after + 1 if c.backoff_after else 0
+        return c.interval_s * (min(2.0 ** over, c.backoff_max) if over > 0 else 1.0)
+
     def round(self, t: float) -> RoundResult | None:
         """One round at ``t`` [s] if due, else None: with ``trocar_physics`` and within
         ``trocar_fit_s`` of the first round, :meth:`_refit_trocar` first; ``round_steps`` Adam
         steps on batches drawn ``recent_fraction`` from the recent ring, the rest from the
         reservoir, then :meth:`_refit_output`; the candidate serves, as the next version, only
-        if its held-out error is lower by ``min_improvement``."""
+        if its held-out error is lower by ``min_improvement``. Outside an eager period a due
+        round is skipped (None, counted in ``skipped``) when no sample was offered since the
+        last one (``skip_idle``), and the interval backs off after refused rounds
+        (:meth:`_interval`)."""
         if not self.due(t):
             return None
         c = self.config
         eager = self.eager(t)
-        self._next_round = t + (c.eager_interval_s if eager else c.interval_s)
+        self._next_round = t + self._interval(eager)
+        if (c.skip_idle and not eager and self.corr is not None
+                and self.seen == self._seen_at_round):
+            self.skipped += 1
+            return None
+        self._seen_at_round = self.seen
         if self.corr is None:
             rows = np.concatenate([self.recent.data(), self.reservoir.data()])
             x, s, _ = self._split(rows)
@@ -483,6 +506,8 @@ class Adapter:
                                eager, body_wall=wall)
         after = _rmse_mean(tuner.forward(h_inp), h_target)
         accepted = after < before * (1.0 - c.min_improvement)
+        self._refused = 0 if accepted else self._refused + 1
+        self._next_round = t + self._interval(eager)       # backed off from this refusal on
         candidate = None
         if accepted:
             candidate = copy.deepcopy(self.corr)

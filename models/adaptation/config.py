@@ -36,6 +36,19 @@ class AdaptationConfig(BaseModel):
     eager_interval_s: float = Field(default=0.5, gt=0.0,
                                     description="time between rounds after a drift [s]")
     eager_s: float = Field(default=30.0, ge=0.0, description="eager period after a drift [s]")
+    skip_idle: bool = Field(
+        default=False,
+        description="outside an eager period, a round that falls due with no sample offered "
+                    "since the last round (a contact holding the buffer, an arm at rest) is "
+                    "skipped: it would train on what the last one trained on")
+    backoff_after: int = Field(
+        default=0, ge=0,
+        description="outside an eager period, after this many rounds in a row whose candidate "
+                    "was refused (the held-out error stopped improving) the interval doubles "
+                    "per further refusal, up to backoff_max x interval_s, until one is "
+                    "accepted or the set-up changes; 0 = never")
+    backoff_max: float = Field(default=4.0, ge=1.0,
+                               description="the longest backed-off interval, in interval_s")
     hidden_size: int = Field(default=64, ge=1, description="Corr hidden units (paper: 256)")
     window: int = Field(default=10, ge=1, description="Corr history window (paper: 10)")
     max_cpu_fraction: float = Field(default=0.5, gt=0.0, le=1.0,

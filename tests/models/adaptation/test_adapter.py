@@ -24,7 +24,8 @@ def run_rounds(adapter: Adapter, n_rounds: int):
 
 
 def test_accepted_rounds_lower_the_held_out_error_and_number_versions():
-    adapter = Adapter(AdaptationConfig(min_train_samples=200, round_steps=30, interval_s=1.0))
+    adapter = Adapter(AdaptationConfig(min_train_samples=200, round_steps=30, interval_s=1.0,
+                                       skip_idle=False))
     adapter.add(*samples(3000))
     results = run_rounds(adapter, 12)
     accepted = [r for r in results if r.accepted]
@@ -38,7 +39,7 @@ def test_accepted_rounds_lower_the_held_out_error_and_number_versions():
 
 def test_a_diverging_candidate_is_never_swapped_in():
     adapter = Adapter(AdaptationConfig(min_train_samples=200, lr=50.0, round_steps=20,
-                                       weight_decay=0.0))
+                                       weight_decay=0.0, skip_idle=False))
     adapter.add(*samples(2000))
     results = run_rounds(adapter, 5)
     assert results and not any(r.accepted for r in results)
@@ -48,10 +49,43 @@ def test_a_diverging_candidate_is_never_swapped_in():
         np.testing.assert_allclose(adapter.corr(x, s).numpy(), s.numpy(), atol=1e-6)
 
 
+def test_a_round_with_nothing_new_is_skipped_unless_eager():
+    adapter = Adapter(AdaptationConfig(min_train_samples=200, interval_s=1.0, skip_idle=True))
+    adapter.add(*samples(1500))
+    assert adapter.round(0.0) is not None
+    assert adapter.round(1.0) is None and adapter.skipped == 1      # due, nothing offered
+    adapter.add(*samples(10, seed=1))
+    assert adapter.round(2.0) is not None and adapter.rounds == 2
+    adapter.on_drift(3.0)                         # eager: a round even on the same buffer
+    assert adapter.round(3.0) is not None and adapter.skipped == 1
+
+
+def test_refused_rounds_back_off_the_interval_until_one_is_accepted():
+    """Candidates that never improve (a diverging rate): after ``backoff_after`` refusals in
+    a row the interval doubles per refusal, up to ``backoff_max`` intervals; a set-up change
+    ends the back-off."""
+    adapter = Adapter(AdaptationConfig(min_train_samples=200, lr=50.0, round_steps=5,
+                                       weight_decay=0.0, interval_s=1.0, backoff_after=3,
+                                       backoff_max=4.0))
+    adapter.add(*samples(1500))
+    times = []
+    for k in range(200):                          # a tick every 0.1 s, new samples each
+        t = 0.1 * k
+        adapter.add(*samples(2, seed=k + 1))
+        r = adapter.round(t)
+        if r is not None:
+            assert not r.accepted
+            times.append(round(r.t, 6))
+    assert np.allclose(np.diff(times)[:6], [1, 1, 2, 4, 4, 4]), times
+    adapter.on_setup_change(20.0, kind="pressure")
+    adapter.round(20.0)
+    assert adapter._interval(eager=False) == 1.0
+
+
 def test_same_seed_same_data_same_model():
     states = []
     for _ in range(2):
-        adapter = Adapter(AdaptationConfig(min_train_samples=200, seed=7))
+        adapter = Adapter(AdaptationConfig(min_train_samples=200, seed=7, skip_idle=False))
         adapter.add(*samples(1500, seed=3))
         run_rounds(adapter, 4)
         states.append({k: v.clone() for k, v in adapter.corr.state_dict().items()})
