@@ -128,10 +128,10 @@ def _new_columns(st: Stacked, cand: Candidate, xa: np.ndarray | None) -> np.ndar
 
 def _supported(st: Stacked, xa: np.ndarray | None, cand: Candidate, keep: np.ndarray
                ) -> np.ndarray:
-    """``keep`` less the columns whose coefficient has no support in the full-data fit
-    (``|t| < MIN_T``), the ``main`` ones of a multi-column shape kept together: a per-joint
-    effect acting on one joint is then scored as one parameter, not six, and competes fairly
-    with a smaller candidate of another kind that explains the same torque."""
+    """``keep`` less the columns of a per-joint candidate whose coefficient has no support in
+    the full-data fit (``|t| < MIN_T``; the best one stays if none has): a per-joint effect
+    acting on one joint is then scored as one parameter, not six, and competes fairly with a
+    smaller candidate of another kind that explains the same torque."""
     if keep.size <= 1 or not cand.per_column:
         return keep
     xc = st.x(cand, keep)
@@ -224,15 +224,20 @@ def select(st: Stacked, candidates: list[Candidate]) -> tuple[list[Named], list[
         pool = [c for c in pool if c is not nm.candidate]
 
 
+def _inadmissible(st: Stacked, cand: Candidate, keep: np.ndarray, beta: np.ndarray,
+                  bse: np.ndarray) -> str | None:
+    """:meth:`Candidate.inadmissible` of coefficients fitted on the columns ``keep``."""
+    full_b, full_s = np.zeros(cand.columns.shape[2]), np.zeros(cand.columns.shape[2])
+    full_b[keep], full_s[keep] = beta, bse
+    unit = np.zeros(cand.columns.shape[2])          # torque RMS per unit, floors
+    unit[keep] = np.sqrt(np.sum(st.x(cand, keep) ** 2, axis=0) / st.n)
+    return cand.inadmissible(full_b, full_s, unit)
+
+
 def _unphysical_together(st: Stacked, named: list[Named]) -> tuple[Named, str] | None:
     """The first named effect whose jointly fitted coefficients are inadmissible, and why."""
     for nm in named:
-        xc = st.x(nm.candidate, nm.keep)
-        full_b, full_s = np.zeros(nm.candidate.columns.shape[2]), np.zeros(nm.candidate.columns.shape[2])
-        full_b[nm.keep], full_s[nm.keep] = nm.beta, nm.bse
-        unit = np.zeros(nm.candidate.columns.shape[2])
-        unit[nm.keep] = np.sqrt(np.sum(xc**2, axis=0) / st.n)
-        why = nm.candidate.inadmissible(full_b, full_s, unit)
+        why = _inadmissible(st, nm.candidate, nm.keep, nm.beta, nm.bse)
         if why:
             return nm, why
     return None
@@ -286,11 +291,7 @@ def _step(st: Stacked, named: list[Named], active: list[Candidate], step: int,
         x = xc if xa is None else np.hstack([xa, xc])
         fit = sm.OLS(st.y, x, hasconst=False).fit()
         beta, bse = fit.params[-xc.shape[1]:], fit.bse[-xc.shape[1]:]
-        full_b, full_s = np.zeros(cand.columns.shape[2]), np.zeros(cand.columns.shape[2])
-        full_b[keep], full_s[keep] = beta, bse
-        unit = np.zeros(cand.columns.shape[2])          # torque RMS per unit, floors
-        unit[keep] = np.sqrt(np.sum(xc**2, axis=0) / st.n)
-        why = cand.inadmissible(full_b, full_s, unit)
+        why = _inadmissible(st, cand, keep, beta, bse)
         if why:
             row["note"] = why
             continue
@@ -372,8 +373,8 @@ def alternatives(st: Stacked, named: list[Named], candidates: list[Candidate]
                  ) -> dict[str, list[Alternative]]:
     """For each named effect, the other candidates that reproduce its fitted torque with a
     whitened ``R^2 >= ALTERNATIVE_R2``, best first: where the workflow names one place or
-    kind, these say which others the motion barely tells it from (a load on the yaw link
-    from one on the parallelogram's pitch axis; a spring from an offset over a short stroke).
+    kind, these say which others the motion barely tells it from (Coulomb friction on a
+    wrist joint from the cable coupling; viscous friction on the insertion from the seal).
     """
     out: dict[str, list[Alternative]] = {}
     for nm in named:

@@ -27,7 +27,12 @@ run at size ``s`` is the effort at size 1 plus ``(s - 1)`` times the effect's to
 from __future__ import annotations
 
 import copy
+import json
+import os
+import platform
+import time
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -36,9 +41,10 @@ from wrenchd.adapters.sim.scenarios import FREE_SPACE_EFFECTS, FREE_SPACE_WORKSP
 from wrenchd.adapters.sim.simulator import simulate
 from wrenchd.adapters.sim.trajectory import FourierTrajectory
 from wrenchd.models.discrepancy.candidates import PAYLOAD_SITES
-from wrenchd.models.discrepancy.workflow import DiscrepancyResult
+from wrenchd.models.discrepancy.workflow import DiscrepancyResult, run_discrepancy
 from wrenchd.models.physics.model import PhysicsModel
 from wrenchd.models.series import Session
+from wrenchd.service.provenance import PROVENANCE_KEY, RunMeter, provenance
 from wrenchd.service.studies.hidden_effects import NOISE_STD
 
 #: Payload positions per carrying link, in its DH frame [m]: the yaw link 10 cm from its
@@ -183,15 +189,6 @@ def effect_cell_study(out, seeds: int, duration: float, cells=None, multiples=MU
                       log=print) -> dict[str, Any]:
     """Run every cell at every multiple on ``seeds`` seeds; write ``effect-cells.json`` and
     ``effect-cells.md`` (the confusion table) in ``out``; return the JSON."""
-    import json
-    import os
-    import platform
-    import time
-    from pathlib import Path
-
-    from wrenchd.models.discrepancy.workflow import run_discrepancy
-    from wrenchd.service.provenance import PROVENANCE_KEY, RunMeter, provenance
-
     meter = RunMeter()
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
