@@ -23,6 +23,7 @@ from wrenchd.models.discrepancy.workflow import run_discrepancy
 from wrenchd.service.studies.hidden_effects import HIDDEN_EFFECTS, MIN_SHRINK, PAIRS, TOLERANCE, judge, make_case
 from wrenchd.service.provenance import PROVENANCE_KEY, RunMeter, provenance
 from wrenchd.service.replay.output import nan_to_none
+from wrenchd.service.runtime import stopping
 
 
 def _run_case(hidden: tuple[str, ...], seed: int, duration: float) -> dict[str, Any]:
@@ -55,6 +56,7 @@ def hidden_effect_sweep(out: Path, seeds: int, duration: float, pair_seeds: int,
     plan += [(p, 1000 + s) for p in PAIRS if set(p) <= set(effects) for s in range(pair_seeds)]
     start = time.perf_counter()
     for i, (hidden, seed) in enumerate(plan, start=1):
+        stopping.check()                  # SIGINT/SIGTERM: stop between runs, write nothing
         row = _run_case(hidden, seed, duration)
         rows.append(row)
         print(f"[{i}/{len(plan)}] hidden={list(hidden) or 'none'} seed={seed} named={row['named']} "

@@ -45,6 +45,7 @@ from wrenchd.models.discrepancy.workflow import DiscrepancyResult, run_discrepan
 from wrenchd.models.physics.model import PhysicsModel
 from wrenchd.models.series import Session
 from wrenchd.service.provenance import PROVENANCE_KEY, RunMeter, provenance
+from wrenchd.service.runtime import stopping
 from wrenchd.service.studies.hidden_effects import NOISE_STD
 
 #: Payload positions per carrying link, in its DH frame [m]: the yaw link 10 cm from its
@@ -199,6 +200,7 @@ def effect_cell_study(out, seeds: int, duration: float, cells=None, multiples=MU
     rows = []
     start = time.perf_counter()
     for i, (kind, place, mult, seed) in enumerate(plan, start=1):
+        stopping.check()                  # SIGINT/SIGTERM: stop between runs, write nothing
         case = make_cell_case(kind, place, mult, seed, duration)
         js = case.session.joint_states
         t0 = time.perf_counter()

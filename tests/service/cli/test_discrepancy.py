@@ -6,11 +6,14 @@ against one_205g_parallel.csv. Simulated data: an MCAP session with a hidden pay
 
 import json
 import os
+import signal
 import subprocess
 import sys
 
 import numpy as np
 import pytest
+
+from tests.support import readline_within, stop_within
 
 from wrenchd.models.physics.model import PhysicsModel
 
@@ -146,3 +149,18 @@ def test_discrepancy_real_names_the_load_on_both_loaded_runs(tmp_path, wpi_data)
     assert 0 < summary["mass_kg"]["105g"] < summary["mass_kg"]["205g"]
     assert (out / "one_205g_parallel" / "report.md").is_file()
     assert PhysicsModel.load(out / "identified_model.json").effects
+
+
+@pytest.mark.parametrize("extra", [["--cells"], ["--effects", "joint_offset"]])
+def test_a_study_stops_between_runs_on_a_signal_and_writes_nothing(tmp_path, extra):
+    """SIGINT stops `discrepancy-sweep` (either study) after the run in progress: exit
+    130, the stop said on stderr, no partial report."""
+    proc = subprocess.Popen([sys.executable, "-m", "wrenchd", "discrepancy-sweep", *extra,
+                             "--seeds", "3", "--none-seeds", "3", "--out", str(tmp_path)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "OMP_NUM_THREADS": "1"})
+    assert readline_within(proc, 120.0, "the study").startswith("[1/")
+    _, err = stop_within(proc, 60.0, "the study", signal.SIGINT)
+    assert proc.returncode == 128 + signal.SIGINT, err
+    assert "stopped by SIGINT" in err
+    assert not list(tmp_path.iterdir())
