@@ -101,9 +101,6 @@ class Candidate:
     #: for candidates whose shape is profiled on the residual (Stribeck velocity, seal
     #: travel and static ratio): rebuild on another residual (N, 6)
     rebuild: Callable[[np.ndarray], "Candidate"] | None = None
-    #: one column per joint, each a separate parameter (friction, offsets, springs): the
-    #: selection counts only the columns with support
-    per_column: bool = False
 
     def inadmissible(self, beta: np.ndarray, bse: np.ndarray, size: np.ndarray,
                      sigmas: float = 3.0, material: float = 0.2) -> str | None:
@@ -116,6 +113,12 @@ class Candidate:
         bad = [self.names[i] for i, base in self.nonneg
                if base + beta[i] + sigmas * bse[i] < 0 and -(base + beta[i]) * size[i] >= material]
         return f"unphysical sign of {', '.join(bad)}" if bad else None
+
+    @property
+    def per_column(self) -> bool:
+        """One column per joint, each a separate parameter (:data:`PER_COLUMN`): the
+        selection counts only the columns with support."""
+        return self.name in PER_COLUMN
 
     def torque(self, beta: np.ndarray) -> np.ndarray:
         """Effect torque (N, 6) for coefficients ``beta`` (k,)."""
@@ -386,7 +389,6 @@ def build_candidates(motion: Motion, model: PhysicsModel, residual: np.ndarray,
         *_drifts(motion, model, floor),
     ]
     for cand in cands:
-        cand.per_column = cand.name in PER_COLUMN
         if not cand.nonneg:
             cand.nonneg = _sign_constraints(cand, model)
     for cand in cands:
@@ -399,7 +401,6 @@ def _rebuilder(name: str, motion: Motion, model: PhysicsModel, weights: np.ndarr
     def rebuild(residual: np.ndarray) -> Candidate:
         cand = _stribeck(motion, residual, weights) if name == "stribeck_friction" \
             else _seal(motion, residual)
-        cand.per_column = cand.name in PER_COLUMN
         cand.nonneg = _sign_constraints(cand, model)
         cand.rebuild = rebuild
         return cand
