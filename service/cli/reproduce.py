@@ -20,7 +20,9 @@ folder to start afresh). It writes the trained step-1 models under ``OUT/weights
 (``Base-seed0.pt``...: estimator checkpoints with their held-out scores, usable as ``--model``).
 
 Writes ``results.json`` (every number), ``force-rmse-vs-length.png`` (matplotlib, Agg) and
-``README.md`` (the three tables, the oracle ratios, the fast Corr recipe beside the paper's).
+``README.md`` (the three tables, the oracle ratios, the fast Corr recipe beside the paper's),
+and writes them again after every (training seed, length) cell while the run goes on: until
+it ends, their ``progress`` says which cells are done.
 The experiment itself is :mod:`wrenchd.service.studies.reproduction`, the report
 :mod:`wrenchd.service.studies.reproduction_report`; ``results.json`` carries the provenance
 of the run.
@@ -53,7 +55,7 @@ def reproduce(args: argparse.Namespace) -> int:
         ReproductionResult,
         run_reproduction,
     )
-    from wrenchd.service.studies.reproduction_report import PLOT, markdown, plot, pretrained_info
+    from wrenchd.service.studies.reproduction_report import pretrained_info
 
     meter = RunMeter()
     if args.threads:
@@ -66,8 +68,21 @@ def reproduce(args: argparse.Namespace) -> int:
     if args.render_only:                          # tables and plot again, no training
         results = ReproductionResult.read(out / "results.json")
         wall, command = results.wall_seconds, results.command
+        write(out, results, command, wall, args.notes_text)
     else:
         start = time.perf_counter()
+        command = "wrenchd reproduce " + " ".join(args.argv)
+
+        def save(results: ReproductionResult) -> float:
+            """results.json, the report and the plot of the run so far; the wall time."""
+            wall = time.perf_counter() - start
+            data = results.to_json()
+            data["wall_seconds"], data["command"] = round(wall, 1), command
+            stamp(data, run=meter)
+            write(out, ReproductionResult.model_validate(data), command, wall, args.notes_text,
+                  data)
+            return wall
+
         shipped = config.step1 is None
         results = run_reproduction(config, load_pretrained("base") if shipped else None,
                                    load_pretrained("seal") if shipped else None,
@@ -76,18 +91,26 @@ def reproduce(args: argparse.Namespace) -> int:
                                    device=args.device,
                                    checkpoints=(out / CHECKPOINTS if config.step1 is not None
                                                 else None),
-                                   weights=out / WEIGHTS if config.step1 is not None else None)
-        wall = time.perf_counter() - start
-        command = "wrenchd reproduce " + " ".join(args.argv)
-        data = results.to_json()
-        data["wall_seconds"], data["command"] = round(wall, 1), command
-        stamp(data, run=meter)
-        results = ReproductionResult.model_validate(data)
-        (out / "results.json").write_text(json.dumps(data, indent=1) + "\n")
-    plot(results, out / PLOT)
-    (out / "README.md").write_text(markdown(results, command, wall) + args.notes_text)
+                                   weights=out / WEIGHTS if config.step1 is not None else None,
+                                   progress=save)
+        wall = save(results)
     print(json.dumps({"out": str(out), "wall_seconds": round(wall, 1)}))
     return 0
+
+
+def write(out: Path, results, command: str, wall: float, notes: str,
+          data: dict | None = None) -> None:
+    """``OUT/results.json`` (when ``data``, the results' JSON, is given), ``README.md`` and the
+    plot; the JSON is written to a temporary file and renamed, so that a run stopped while
+    writing leaves the last complete one."""
+    from wrenchd.service.studies.reproduction_report import PLOT, markdown, plot
+
+    if data is not None:
+        tmp = out / "results.json.tmp"
+        tmp.write_text(json.dumps(data, indent=1) + "\n")
+        tmp.replace(out / "results.json")
+    plot(results, out / PLOT)
+    (out / "README.md").write_text(markdown(results, command, wall) + notes)
 
 
 def with_options(config, args: argparse.Namespace):

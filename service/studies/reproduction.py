@@ -53,6 +53,7 @@ from wrenchd.service.studies.reproduction_results import (
     InDomainCell,
     OutputFilter,
     Pretrained,
+    Progress,
     ReproductionResult,
     Seeds,
     Step1Fit,
@@ -130,13 +131,19 @@ def run_reproduction(config: ReproductionConfig, base: FreeSpaceModel | None = N
                      log: Callable[[str], None] = print,
                      device: str | None = "cpu",
                      checkpoints: Path | None = None,
-                     weights: Path | None = None) -> ReproductionResult:
+                     weights: Path | None = None,
+                     progress: Callable[[ReproductionResult], None] | None = None
+                     ) -> ReproductionResult:
     """Train the per-length configurations, evaluate all six, return the results.
 
     ``checkpoints``: a folder where every recurrent network's training (Base, Seal, Troc,
     Xfer, per seed and length) is saved after each epoch and resumed from: the same command
     started again after a stop goes on where it stopped. ``weights``: a folder where the
     step-1 models trained here (Base, Seal, per seed) are written as estimator checkpoints.
+    ``progress``: called after every (training seed, length) cell with the result so far
+    (its :class:`~wrenchd.service.studies.reproduction_results.Progress` says what is done;
+    the tables hold the lengths every configuration has reached): a run of days shows its
+    figures as they come, and a stopped one keeps them.
 
     Data: the trocar training set of length ``L`` is ``L / segment_s`` simulated ``trocar``
     sessions of ``segment_s`` seconds (seeds ``seed + k``; the sets are nested, a longer set
@@ -183,6 +190,8 @@ def run_reproduction(config: ReproductionConfig, base: FreeSpaceModel | None = N
     collected = Collected()
     step1_tables = ("no_contact", "contact", "step1_in_domain")
     once = config.step1 is not None and config.step1.one_seed
+    done: list[tuple[int, float]] = []
+    planned = len(config.training_seeds) * len(config.lengths_s)
     for seed in config.training_seeds:
         # step 1 trained per seed, or once (the first seed's, served under every seed): then
         # scored once too, so that its intervals do not count one network as several
@@ -209,11 +218,15 @@ def run_reproduction(config: ReproductionConfig, base: FreeSpaceModel | None = N
                     f"({trained.fit.epochs_run} epochs), contact force RMSE "
                     f"{scores.contact[name]['truth']['rmse'][:, :3].mean():.3f} N")
             collected.add_length(training, scores)
+            done.append((seed, float(length)))
             if (length == config.lengths_s[0] and config.fast_vs_paper
                     and seed == config.training_seeds[0]):
                 collected.fast_vs_paper = fast_vs_paper(
                     config, base, data, sets.contact, wmap,
                     wrench_rmse(oracle_torques(sets.contact), sets.contact, wmap), log)
+            if progress is not None and len(done) < planned:
+                progress(summarise_run(config, sets, scorers, collected, pretrained_info,
+                                       Progress(done=list(done), planned=planned)))
     return summarise_run(config, sets, scorers, collected, pretrained_info)
 
 
@@ -230,9 +243,10 @@ def log_in_domain(scorers: Scorers, scores: ModelScores, filtered: bool, seed: i
 
 
 def summarise_run(config: ReproductionConfig, sets: ReproductionSets, scorers: Scorers,
-                  collected: Collected, pretrained_info: dict[str, Pretrained] | None
-                  ) -> ReproductionResult:
-    """The run's result from what the training seeds collected."""
+                  collected: Collected, pretrained_info: dict[str, Pretrained] | None,
+                  progress: Progress | None = None) -> ReproductionResult:
+    """The run's result from what the training seeds collected (``progress``: how far a
+    partial run has come; its configurations not scored yet are left out)."""
     cut = config.output_filter_hz
     filtered = cut is not None
     floors = scorers.floors()
@@ -274,7 +288,7 @@ def summarise_run(config: ReproductionConfig, sets: ReproductionSets, scorers: S
                         for L, per_seed in by_length.items()}
                  for name, by_length in collected.contact.items()},
         no_contact={name: summarise(per_seed, floors["no_contact"], filtered)
-                    for name, per_seed in collected.no_contact.items()},
+                    for name, per_seed in collected.no_contact.items() if per_seed},
         validation={name: {L: FitCell(score=float(np.mean([x.score for x in v])),
                                       epochs_run=int(max(x.epochs_run for x in v)), per_seed=v)
                            for L, v in by_length.items()}
@@ -282,5 +296,5 @@ def summarise_run(config: ReproductionConfig, sets: ReproductionSets, scorers: S
         patient_draws_disjoint=sets.draws_disjoint() if config.patient_variation else None,
         patients=sets.patients() if config.patient_variation else None,
         fast_vs_paper=collected.fast_vs_paper, step1=step1,
-        step1_in_domain=in_domain or None)
+        step1_in_domain=in_domain or None, progress=progress)
     return result.model_copy(update={"criteria": criteria(result)})

@@ -53,7 +53,7 @@ def plot(results: ReproductionResult | dict[str, Any], path: Path) -> None:
     import matplotlib.pyplot as plt
 
     results = _result(results)
-    lengths = list(results.config.lengths_s)
+    lengths = results.lengths
     fig, ax = plt.subplots(figsize=(6.4, 4.2), dpi=120)
     for name in CONFIGS:
         cells = [results.contact[name][float(L)] for L in lengths]
@@ -86,7 +86,7 @@ def markdown(results: ReproductionResult | dict[str, Any], command: str, wall_s:
     if results.scored:
         return scored_markdown(results, command, wall_s)
     cfg = results.config
-    lengths = [float(L) for L in cfg.lengths_s]
+    lengths = results.lengths
     lhead = [f"{L:g} s" for L in lengths]
     rec = results.recipes
     out = ["# Paper reproduction on the simulator\n",
@@ -303,6 +303,20 @@ def _in_domain(results: ReproductionResult, filt: bool) -> list[str]:
             ""]
 
 
+def _partial(results: ReproductionResult) -> list[str]:
+    """A partial run's banner: what is done, what the tables hold."""
+    p = results.progress
+    if p is None:
+        return []
+    done = ", ".join(f"seed {seed} at {length:g} s" for seed, length in p.done)
+    longest = f"{float(results.config.lengths_s[-1]):g} s"
+    return [f"**Partial run: {len(p.done)} of {p.planned} (training seed, length) cells "
+            f"done** ({done}). The tables hold the lengths every configuration has reached, "
+            f"each cell over the seeds done there; Table 2 lists a trained configuration once "
+            f"a seed has trained it at the longest length ({longest}). The same command goes "
+            "on from the checkpoints.\n"]
+
+
 def _targets(results: ReproductionResult, last: str) -> list[str]:
     crit = results.criteria
     if not crit:
@@ -335,12 +349,13 @@ def scored_markdown(results: ReproductionResult | dict[str, Any], command: str,
     trials with its 95 % interval, floors raw and filtered, contact-only RMSE, peak error and
     the sensor channel beside the truth."""
     results = _result(results)
-    lengths = [float(L) for L in results.config.lengths_s]
+    lengths = results.lengths
     lhead = [f"{L:g} s" for L in lengths]
     filt = bool(results.output_filter)
     out = ["# Paper reproduction on the simulator\n",
            f"Command: `{command}` ({wall_s / 60:.1f} min wall, {results.torch_threads} torch "
            f"threads, {platform.processor() or platform.machine()}).\n",
+           *_partial(results),
            "Wu, Yilmaz, Kazanzides, Tumerdem, *Estimation of Trocar and Tool Interaction Forces "
            "on the da Vinci Research Kit with Two-Step Deep Learning*: the three tables and the "
            "force plot regenerated on simulated data (`service/studies/reproduction.py` says "
@@ -355,10 +370,11 @@ def scored_markdown(results: ReproductionResult | dict[str, Any], command: str,
                 + (["contact force RMSE [N]"] if with_contact else [])
                 + ["peak force error [N]"] + (["sensor: force RMSE [N]"] if sensor else []))
 
-    nc = {n: results.no_contact[n] for n in CONFIGS}
+    nc = {n: results.no_contact[n] for n in CONFIGS if n in results.no_contact}
     floors_nc = (results.oracle["no_contact"], results.oracle_filtered["no_contact"])
     sensor_nc = "sensor" in nc["Base"].scores
-    out += [f"## Table 2: no-contact RMSE (trained on {lhead[-1]})\n",
+    longest = f"{float(results.config.lengths_s[-1]):g} s"
+    out += [f"## Table 2: no-contact RMSE (trained on {longest})\n",
             "False force on trocar motion without contact, unseen patients:\n",
             _table(header(False, sensor_nc), _summary_rows(nc, floors_nc, False, filt)), "",
             "Per axis (truth) [N, N m]:\n", _per_axis(nc, floors_nc), ""]
@@ -381,7 +397,7 @@ def scored_markdown(results: ReproductionResult | dict[str, Any], command: str,
 def verdict(results: ReproductionResult | dict[str, Any]) -> str:
     """Do the two-step configurations beat Base and Seal on contact force RMSE?"""
     results = _result(results)
-    lengths = [float(L) for L in results.config.lengths_s]
+    lengths = results.lengths
     c = results.contact
     best_one = min(c["Base"][lengths[0]].force_rmse, c["Seal"][lengths[0]].force_rmse)
     lines = ["## Do the two-step configurations beat Base and Seal?\n"]

@@ -181,6 +181,8 @@ class BestTwoStep(Record):
     ratios: dict[str, float]
     unseen_patients: bool
     within_1_5x: bool
+    #: the length it is judged at when that is not the run's longest (a partial run)
+    length_s: float | None = optional()
 
 
 class Criteria(Record):
@@ -189,6 +191,15 @@ class Criteria(Record):
 
     step1_in_domain: Step1Criterion | None = optional()
     best_two_step: BestTwoStep
+
+
+class Progress(Record):
+    """How far a run that is still going (or was stopped) has come: the (training seed,
+    trocar training length) cells trained and scored so far, of ``planned`` in all. A
+    complete run has no progress record."""
+
+    done: list[tuple[int, float]]
+    planned: int
 
 
 class ReproductionResult(Record):
@@ -218,6 +229,14 @@ class ReproductionResult(Record):
     wall_seconds: float | None = optional()
     command: str | None = optional()
     provenance: dict[str, Any] | None = optional()
+    progress: Progress | None = optional()
+
+    @property
+    def lengths(self) -> list[float]:
+        """The trocar training lengths [s] at which every configuration has been scored: all
+        of the config's in a complete run, those done so far in a partial one."""
+        return [float(L) for L in self.config.lengths_s
+                if all(float(L) in by_length for by_length in self.contact.values())]
 
     @property
     def scored(self) -> bool:

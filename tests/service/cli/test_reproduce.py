@@ -121,3 +121,44 @@ def test_paper_quick_records_patients_trials_seeds_intervals_and_both_floors(tmp
     for name in ("Troc", "Seal+Xfer"):
         assert (r2["contact"][name]["40.0"]["scores"]["truth"]["rmse"]["force"]
                 == r["contact"][name]["40.0"]["scores"]["truth"]["rmse"]["force"])
+    assert "progress" not in r2                                  # a complete run has none
+
+
+def test_a_run_writes_its_figures_after_every_cell_and_marks_them_partial(tmp_path):
+    """``progress``: after each (training seed, length) cell the result so far, whose
+    tables hold the lengths every configuration has reached and whose report says it is
+    partial; the run's last result has no progress record."""
+    import torch
+
+    from wrenchd.service.studies.reproduction import PAPER_QUICK, run_reproduction
+    from wrenchd.service.studies.reproduction_report import markdown
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        calls = []
+        final = run_reproduction(PAPER_QUICK, checkpoints=tmp_path / "ck", log=lambda m: None,
+                                 progress=calls.append)
+    finally:
+        torch.set_num_threads(threads)
+    assert [c.progress.done for c in calls] == [[(0, 20.0)], [(0, 20.0), (0, 40.0)],
+                                                [(0, 20.0), (0, 40.0), (1, 20.0)]]
+    assert {c.progress.planned for c in calls} == {4}
+    first = calls[0]
+    assert first.lengths == [20.0] and set(first.contact["Troc"]) == {20.0}
+    # the targets are judged at the longest length scored so far, and say so
+    assert first.criteria.best_two_step.length_s == 20.0
+    # no trained configuration has reached the longest length: its no-contact table is step 1's
+    assert set(first.no_contact) == {"Base", "Seal"}
+    text = markdown(first, "wrenchd reproduce --paper-quick", 1.0)
+    assert "**Partial run: 1 of 4 (training seed, length) cells done** (seed 0 at 20 s)" in text
+    assert "at 20 s (" in text and "### 40 s of trocar training data" not in text
+    second = calls[1]
+    assert second.lengths == [20.0, 40.0] and second.criteria.best_two_step.length_s is None
+    assert set(second.no_contact) == set(CONFIGS)
+    # the third holds seed 1 at 20 s only: the 40 s cells are still seed 0's alone
+    third = calls[2]
+    assert third.contact["Troc"][20.0].seeds == 2 and third.contact["Troc"][40.0].seeds == 1
+    assert final.progress is None and final.lengths == [20.0, 40.0]
+    assert final.contact["Troc"][40.0].seeds == 2
+    assert "Partial run" not in markdown(final, "wrenchd reproduce --paper-quick", 1.0)
