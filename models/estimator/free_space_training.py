@@ -12,14 +12,16 @@ With a ``checkpoint`` path, :func:`train_recurrent` saves its whole state after 
 (weights, optimiser, schedule, best weights per group, history, patience count, the epoch
 RNG) and, when the file is there at its start, goes on from the epoch after the saved one:
 a run stopped at any point (a signal, a lost machine) and started again with the same data
-and recipe ends with the same weights as one that never stopped. A run that stopped early
-(``patience``) says so in its file, and starting it again only rebuilds the result; one that
-reached its epoch ceiling goes on if started with a higher one.
+and recipe ends with the same weights as one that never stopped. The file also adds up the
+wall time of the epochs over every sitting (``train_seconds`` in the result). A run that
+stopped early (``patience``) says so in its file, and starting it again only rebuilds the
+result; one that reached its epoch ceiling goes on if started with a higher one.
 """
 
 from __future__ import annotations
 
 import copy
+import time
 from typing import Any, Callable, Sequence
 
 import numpy as np
@@ -95,7 +97,9 @@ def train_recurrent(model: GroupedTorqueModel, train: list[Segment], val: list[S
                     checkpoint: Any = None) -> tuple[dict[str, Any], list[float]]:
     """Train ``model`` in place (normalisation already set). Returns (validation, history);
     the validation's ``converged`` says whether early stopping ended the training (validation
-    stalled for ``patience`` epochs) rather than the epoch ceiling.
+    stalled for ``patience`` epochs) rather than the epoch ceiling, its ``train_seconds`` the
+    wall time of the training epochs and their validation, over every sitting of a resumed
+    one (None when a checkpoint written before this was kept does not say).
 
     ``device``: where to train (None: CUDA when present); the model ends on the CPU.
     ``checkpoint``: a file (path) to save the training state to after every epoch and to go
@@ -122,7 +126,9 @@ def train_recurrent(model: GroupedTorqueModel, train: list[Segment], val: list[S
     best = [np.inf] * len(groups)
     best_state = [copy.deepcopy(net.state_dict()) for net in model.nets]
     history, stale, first, finished = [], 0, 0, False
+    spent: float | None = 0.0                  # wall time of the epochs, every sitting's
     if saved is not None:
+        spent = saved.get("train_seconds")
         model.load_state_dict(saved["model"])
         opt.load_state_dict(saved["optimizer"])
         if sched is not None:
@@ -136,6 +142,7 @@ def train_recurrent(model: GroupedTorqueModel, train: list[Segment], val: list[S
         first, finished = len(history), bool(saved["finished"])
     lane_len = config.window * config.lane_windows
     for epoch in range(first, 0 if finished else config.epochs):
+        began = time.perf_counter()
         model.train()
         xs, ys = _lanes(train, lane_len, int(rng.integers(config.window)))
         order = rng.permutation(len(xs))
@@ -168,6 +175,8 @@ def train_recurrent(model: GroupedTorqueModel, train: list[Segment], val: list[S
         history.append(float(np.sqrt(per_joint).mean()))
         stale = 0 if improved else stale + 1
         finished = config.patience is not None and stale >= config.patience
+        if spent is not None:
+            spent += time.perf_counter() - began
         if checkpoint is not None:
             save_training_state(checkpoint, {
                 "fingerprint": fingerprint, "model": model.state_dict(),
@@ -176,7 +185,7 @@ def train_recurrent(model: GroupedTorqueModel, train: list[Segment], val: list[S
                 "best": best, "best_state": best_state, "history": history, "stale": stale,
                 "rng": rng.bit_generator.state, "torch_rng": torch.get_rng_state(),
                 "cuda_rng": torch.cuda.get_rng_state_all() if device.type == "cuda" else None,
-                "finished": finished})
+                "finished": finished, "train_seconds": spent})
         if on_epoch is not None:        # after the save: a callback that raises (a stop
             on_epoch(epoch, history[-1])  # request) leaves the epoch it saw resumable
         if finished:
@@ -189,7 +198,8 @@ def train_recurrent(model: GroupedTorqueModel, train: list[Segment], val: list[S
     target = np.concatenate([y for _, y in val])
     report = rmse_report(pred, target, model.out_mean.double().numpy(),
                           model.out_std.double().numpy())
-    return {**report, "epochs_run": len(history), "converged": finished}, history
+    return {**report, "epochs_run": len(history), "converged": finished,
+            "train_seconds": None if spent is None else round(spent, 2)}, history
 
 
 def fit_free_space(series: Sequence[JointStates], model_config: FreeSpaceConfig | None = None,

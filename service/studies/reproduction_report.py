@@ -32,7 +32,7 @@ def _table(header: list[str], rows: list[list[str]]) -> str:
 
 
 def _f(x: float, digits: int = 3) -> str:
-    return f"{x:.{digits}f}"
+    return "-" if x != x else f"{x:.{digits}f}"        # NaN: not measured
 
 
 def _result(results: ReproductionResult | dict[str, Any]) -> ReproductionResult:
@@ -245,7 +245,7 @@ def _training_rows(results: ReproductionResult, lengths: list[float]) -> list[li
             per = [p[name] for p in results.step1.per_seed]
             secs = sum(p.train_seconds for p in per) / len(per)
             ep = max(p.epochs_run for p in per)
-            rows.append([name] + [f"trained on free motion ({secs:.1f} s, {ep} epochs)"]
+            rows.append([name] + [f"trained on free motion ({_f(secs, 1)} s, {ep} epochs)"]
                         * len(lengths))
         else:
             rows.append([name] + [f"pretrained ({_pretrained_seconds(results, name)} s, "
@@ -301,6 +301,18 @@ def _in_domain(results: ReproductionResult, filt: bool) -> list[str]:
                     + [_force(c.scores["truth"]["peak"]), _f(c.oracle.force_rmse),
                        _f(c.oracle_filtered.force_rmse)] for n, c in s1.items()]),
             ""]
+
+
+def _untimed(results: ReproductionResult) -> list[str]:
+    """A note under table 1 when a time is missing: a network trained before its checkpoint
+    kept the training time (its file is reused as it is)."""
+    times = [v for by_length in results.train_seconds.values() for v in by_length.values()]
+    if results.step1:
+        times += [p.train_seconds for per in results.step1.per_seed for p in per.values()]
+    if not any(v != v for v in times):
+        return []
+    return ["`-`: trained in an earlier sitting whose checkpoint did not keep the training "
+            "time (a training time is the wall time of the epochs, every sitting's).\n"]
 
 
 def _partial(results: ReproductionResult) -> list[str]:
@@ -362,7 +374,8 @@ def scored_markdown(results: ReproductionResult | dict[str, Any], command: str,
            "how).\n",
            *_setup(results),
            "## Table 1: training time [s] against trocar training length\n",
-           _table(["config"] + lhead, _training_rows(results, lengths)), ""]
+           _table(["config"] + lhead, _training_rows(results, lengths)), "",
+           *_untimed(results)]
 
     def header(with_contact: bool, sensor: bool) -> list[str]:
         return (["config", "force RMSE [N]", "/ raw floor", "/ filtered floor"]

@@ -81,7 +81,7 @@ def train_step1(config: ReproductionConfig, seed: int,
                                  [s.joint_states for s in held], rec, device=device,
                                  on_epoch=stop_between_epochs,
                                  checkpoint=_checkpoint(checkpoints, f"{name}-seed{seed}.pt"))
-        seconds = time.perf_counter() - start
+        seconds = _trained_seconds(res.validation, time.perf_counter() - start)
         models[name] = res.model
         fits[name] = Step1Fit(train_seconds=round(seconds, 2), score=res.validation["score"],
                               epochs_run=res.validation["epochs_run"])
@@ -93,6 +93,16 @@ def train_step1(config: ReproductionConfig, seed: int,
             log(f"seed {seed} {name}: weights in {weights / f'{name}-seed{seed}.pt'} "
                 f"({'converged' if res.validation.get('converged') else 'not converged'})")
     return Step1Fits(models=models, fits=fits)
+
+
+def _trained_seconds(validation: dict, wall: float) -> float:
+    """A training's time [s]: a checkpointed network's epochs over every sitting (not the
+    seconds a resumed one took to be rebuilt; NaN when a checkpoint too old to say was
+    kept), else the wall time it took here."""
+    if "train_seconds" not in validation:
+        return wall
+    kept = validation["train_seconds"]
+    return float("nan") if kept is None else float(kept)
 
 
 class Trained(BaseModel):
@@ -146,7 +156,9 @@ def train_length(config: ReproductionConfig, seed: int, length_s: float,
             step1 = base if name == "Base+Corr" else seal
             res = fit_corr(step1, data, config=rec_corr)
             step2 = res.model
-        out[name] = Trained(step1=step1, step2=step2, seconds=time.perf_counter() - start,
+        out[name] = Trained(step1=step1, step2=step2,
+                            seconds=_trained_seconds(res.validation,
+                                                     time.perf_counter() - start),
                             fit=Fit(score=res.validation["score"],
                                     epochs_run=res.validation["epochs_run"]))
     return LengthTraining(seed=seed, length_s=length_s, configs=out)

@@ -51,6 +51,9 @@ def test_a_run_resumed_at_its_checkpoint_ends_as_one_that_never_stopped(series, 
     again = fit_free_space(series, SMALL, _recipe(5), checkpoint=path)
     assert again.history == straight.history
     _same_weights(again, straight)
+    # its training time is the epochs' of both sittings, not the rebuild's
+    spent = [r.validation["train_seconds"] for r in (first, resumed, again)]
+    assert 0.0 < spent[0] < spent[1] == spent[2]
 
 
 def test_a_run_stopped_early_stays_stopped_and_another_runs_file_is_refused(series, tmp_path):
