@@ -93,6 +93,7 @@ def test_paper_quick_records_patients_trials_seeds_intervals_and_both_floors(tmp
     text = (out / "README.md").read_text()
     for title in ("Table 1: training time", "Table 2: no-contact RMSE",
                   "Table 3: contact RMSE", "Step 1 in domain", "## Targets",
+                  "What differs from the paper, and why",
                   "oracle (filtered)", "sensor: force RMSE", "before the filter"):
         assert title in text
     # every recurrent network's training was saved; the same command again resumes from the
