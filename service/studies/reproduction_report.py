@@ -8,6 +8,7 @@ ReproductionResult` or the JSON object of its ``results.json``: ``README.md`` te
 
 from __future__ import annotations
 
+import math
 import platform
 from pathlib import Path
 from typing import Any
@@ -32,7 +33,7 @@ def _table(header: list[str], rows: list[list[str]]) -> str:
 
 
 def _f(x: float, digits: int = 3) -> str:
-    return "-" if x != x else f"{x:.{digits}f}"        # NaN: not measured
+    return "-" if math.isnan(x) else f"{x:.{digits}f}"        # NaN: not measured
 
 
 def _result(results: ReproductionResult | dict[str, Any]) -> ReproductionResult:
@@ -248,9 +249,9 @@ def _differs(results: ReproductionResult) -> list[str]:
         "force sensor, the paper's reference, is simulated beside them (`sensor`).",
         f"- **Training length**: the paper's recipes with {rec['troc'].epochs} epochs as a "
         f"ceiling, ended by early stopping ({rec['troc'].patience} epochs without improvement "
-        "on held-out sessions): an epoch of step 1 on its hour of data takes 25-73 s on the "
-        "2-core machines this project runs on, so 1000 epochs of every network would take "
-        "days; the epochs each network ran are in Table 1.",
+        "on held-out sessions): an epoch of step 1 on its hour of data takes tens of seconds "
+        "on a 2-core CPU (docs/estimator-and-training.md, the paper-scale run), so 1000 epochs "
+        "of every network would take days; the epochs each network ran are in Table 1.",
         "- **Step 1 once**: Base and Seal are trained with the first seed and served under "
         "every seed, since step 1 is most of the run's compute; their cells' intervals are "
         "over trials only." if cfg.step1 is not None and cfg.step1.one_seed else
@@ -341,7 +342,7 @@ def _untimed(results: ReproductionResult) -> list[str]:
     times = [v for by_length in results.train_seconds.values() for v in by_length.values()]
     if results.step1:
         times += [p.train_seconds for per in results.step1.per_seed for p in per.values()]
-    if not any(v != v for v in times):
+    if not any(math.isnan(v) for v in times):
         return []
     return ["`-`: trained in an earlier sitting whose checkpoint did not keep the training "
             "time (a training time is the wall time of the epochs, every sitting's).\n"]
