@@ -14,8 +14,8 @@ paper's Corr recipe, the realistic handle, a 10 Hz causal output filter with bot
 (:data:`wrenchd.service.studies.reproduction.PAPER`); the options below change its sizes.
 
 A run that trains step 1 (``--paper``, ``--paper-quick``) saves every recurrent network's
-training under ``OUT/checkpoints/`` after each epoch: the same command started again after a
-stop goes on where it stopped (a file of another recipe or data is refused; remove the
+training under ``OUT/checkpoints/`` after each epoch, and each Corr once trained: the same
+command started again after a stop goes on where it stopped (a file of another recipe or data is refused; remove the
 folder to start afresh). It writes the trained step-1 models under ``OUT/weights/``
 (``Base-seed0.pt``...: estimator checkpoints with their held-out scores, usable as ``--model``).
 

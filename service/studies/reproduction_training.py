@@ -9,17 +9,23 @@ training series; Corr trains on the CPU.
 
 from __future__ import annotations
 
-from pathlib import Path
-
+import hashlib
+import json
 import time
+from pathlib import Path
+from types import SimpleNamespace
 from typing import Any, Callable
 
 import numpy as np
 import torch
 from pydantic import BaseModel, ConfigDict
 
-from wrenchd.models.estimator.checkpoint import save_result
-from wrenchd.models.estimator.correction import Corr, Xfer
+from wrenchd.models.estimator.checkpoint import (
+    load_training_state,
+    save_result,
+    save_training_state,
+)
+from wrenchd.models.estimator.correction import Corr, CorrConfig, Xfer
 from wrenchd.models.estimator.correction_training import fit_corr, fit_xfer
 from wrenchd.models.estimator.free_space import FreeSpaceModel
 from wrenchd.models.estimator.free_space_training import fit_free_space
@@ -95,6 +101,50 @@ def train_step1(config: ReproductionConfig, seed: int,
     return Step1Fits(models=models, fits=fits)
 
 
+def _digest(model: torch.nn.Module) -> str:
+    """SHA-256 of a model's weights (names, shapes and bytes of its state)."""
+    h = hashlib.sha256()
+    for key, value in model.state_dict().items():
+        t = value.detach().cpu().contiguous()
+        h.update(f"{key}{tuple(t.shape)}{t.dtype}".encode())
+        h.update(t.numpy().tobytes())
+    return h.hexdigest()
+
+
+def _fit_corr_once(step1: FreeSpaceModel, data: list[JointStates], rec: TrainConfig,
+                   path: Path | None):
+    """``fit_corr``, or the Corr a former sitting trained on the same recipe, data and step-1
+    weights, read from ``path`` (written when it trains here). Corr keeps no per-epoch
+    checkpoint (it trains in minutes), but a restarted run would otherwise train every
+    length's again; training is seeded, so the file holds the very weights a retraining
+    would give. Returns what ``train_length`` reads: ``model`` and ``validation``.
+
+    Raises:
+        DataError: ``path`` holds another run's Corr.
+    """
+    if path is None:
+        return fit_corr(step1, data, config=rec)
+    fingerprint = {"format": 1, "recipe": rec.model_dump(mode="json"), "step1": _digest(step1),
+                   "data": [[len(js.t), float(np.sum(js.position)), float(np.sum(js.effort))]
+                            for js in data]}
+    saved = load_training_state(path, fingerprint)
+    if saved is not None:
+        with torch.random.fork_rng(devices=[]):     # its initial weights draw: not the run's
+            corr = Corr(CorrConfig(**saved["config"])).to(saved["state"]["in_mean"].dtype)
+        corr.load_state_dict(saved["state"])
+        return SimpleNamespace(model=corr.eval(), validation=saved["validation"])
+    start = time.perf_counter()
+    res = fit_corr(step1, data, config=rec)
+    validation = json.loads(json.dumps({**res.validation,
+                                        "train_seconds": time.perf_counter() - start},
+                                       default=float))
+    save_training_state(path, {"fingerprint": fingerprint, "state": res.model.state_dict(),
+                               "config": res.model.config.model_dump(mode="json"),
+                               "validation": validation})
+    res.validation["train_seconds"] = validation["train_seconds"]    # as a later sitting reads
+    return res
+
+
 def _trained_seconds(validation: dict, wall: float) -> float:
     """A training's time [s]: a checkpointed network's epochs over every sitting (not the
     seconds a resumed one took to be rebuilt; NaN when a checkpoint too old to say was
@@ -154,7 +204,8 @@ def train_length(config: ReproductionConfig, seed: int, length_s: float,
             step1, step2 = seal, res.model
         else:
             step1 = base if name == "Base+Corr" else seal
-            res = fit_corr(step1, data, config=rec_corr)
+            res = _fit_corr_once(step1, data, rec_corr, _checkpoint(
+                checkpoints, f"{name}-{length_s:g}s-seed{seed}.pt"))
             step2 = res.model
         out[name] = Trained(step1=step1, step2=step2,
                             seconds=_trained_seconds(res.validation,

@@ -101,7 +101,8 @@ def test_paper_quick_records_patients_trials_seeds_intervals_and_both_floors(tmp
     saved = sorted(p.name for p in (out / "checkpoints").glob("*.pt"))
     lengths = [f"{float(x):g}s-" for x in r["contact"]["Troc"]]
     assert saved == sorted([f"{n}-seed0.pt" for n in ("Base", "Seal")]
-                           + [f"{n}-{tail}seed{k}.pt" for k in (0, 1) for n in ("Troc", "Xfer")
+                           + [f"{n}-{tail}seed{k}.pt" for k in (0, 1)
+                              for n in ("Troc", "Xfer", "Base+Corr", "Seal+Corr")
                               for tail in lengths])
     # the trained step-1 models are written as checkpoints a --model option takes
     from wrenchd.service.pipeline.step1 import load_step1
@@ -119,9 +120,11 @@ def test_paper_quick_records_patients_trials_seeds_intervals_and_both_floors(tmp
     r2 = json.loads((out / "results.json").read_text())
     assert [s["Base"]["score"] for s in r2["step1"]["per_seed"]] == [
         s["Base"]["score"] for s in r["step1"]["per_seed"]]
-    for name in ("Troc", "Seal+Xfer"):
+    # Corr, which keeps no per-epoch checkpoint, is read back finished, not trained again
+    for name in ("Troc", "Seal+Xfer", "Base+Corr", "Seal+Corr"):
         assert (r2["contact"][name]["40.0"]["scores"]["truth"]["rmse"]["force"]
                 == r["contact"][name]["40.0"]["scores"]["truth"]["rmse"]["force"])
+    assert r2["train_seconds"]["Base+Corr"] == r["train_seconds"]["Base+Corr"]
     assert "progress" not in r2                                  # a complete run has none
 
 
