@@ -27,15 +27,17 @@ FLOORS = ("models", "adapters", "service")
 #: (json: text of a model's own description; time: clocks that time a fit)
 MODELS_MAY_IMPORT = frozenset({
     "numpy", "scipy", "torch", "pinocchio", "river", "pydantic", "sklearn", "statsmodels",
-    "__future__", "abc", "array", "bisect", "cmath", "collections", "contextlib", "copy",
+    "numba", "__future__", "abc", "array", "bisect", "cmath", "collections", "contextlib", "copy",
     "dataclasses", "enum", "fractions", "functools", "heapq", "itertools", "json", "math",
     "numbers", "operator", "random", "re", "statistics", "string", "textwrap", "time", "types",
     "typing", "warnings", "weakref",
 })
 #: file access in models, where a model saves and loads its own state (checkpoints, fitted
-#: parameters, the weights shipped with the package): {file: modules}
+#: parameters, the weights shipped with the package), and the compiled kernels' switch in
+#: the environment: {file: modules}
 MODELS_FILE_ACCESS = {
     "models/estimator/checkpoint.py": {"os", "pathlib", "pickle"},
+    "models/estimator/compiled.py": {"os"},
     "models/estimator/hybrid.py": {"io", "os"},
     "models/estimator/pretrained.py": {"pathlib"},
     "models/physics/model.py": {"pathlib"},

@@ -25,6 +25,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator
 from torch import nn
 
 from wrenchd.models.errors import ConfigError, DataError
+from wrenchd.models.estimator.compiled import compiled_correction
 from wrenchd.models.estimator.features import N_FEATURES, history_windows
 from wrenchd.models.estimator.free_space import MIN_STD, FreeSpaceModel, GroupedTorqueModel, check_groups
 from wrenchd.models.estimator.kernels import GroupedRecurrentKernel, LSTMLayerKernel, MLPKernel
@@ -186,12 +187,26 @@ class CorrKernel:
              (f64["net.2.weight"], f64["net.2.bias"], False)], dtype,
             in_shift=shift, in_scale=scale, out_shift=np.zeros(N_JOINTS),
             out_scale=f64["tau_std"])
+        # one row compiled with numba where it is installed (compiled.py)
+        self._compiled = compiled_correction(self.mlp)
+
+    def __getstate__(self) -> dict:
+        # the compiled form stays in its process: the receiver builds its own
+        return {k: v for k, v in self.__dict__.items() if k != "_compiled"}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self._compiled = compiled_correction(self.mlp)
 
     def correct(self, windows: np.ndarray, step1: np.ndarray) -> np.ndarray:
         """(B, W, 12) raw windows, (B, 6) step-1 torques -> (B, 6) corrected torques."""
         b = step1.shape[0]
-        v = np.concatenate([windows.reshape(b, -1), step1], axis=1).astype(self.dtype, copy=False)
-        out = step1 + self.mlp(v)
+        if b == 1 and self._compiled is not None:
+            out = self._compiled(windows[0], step1[0])[None, :]
+        else:
+            v = np.concatenate([windows.reshape(b, -1), step1], axis=1).astype(self.dtype,
+                                                                              copy=False)
+            out = step1 + self.mlp(v)
         if self.theta is None:
             return out
         last = windows[:, -1]

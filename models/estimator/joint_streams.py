@@ -116,10 +116,8 @@ def _step_one_each(estimators: list[TwoStepEstimator],
         restart.append(fresh)
         if not fresh and e._state is not None:
             h[:, i], cell[:, i] = e._state[0][:, 0], e._state[1][:, 0]
-    xp = x.astype(kernel.dtype) @ layer.weight_x
-    xp += layer.bias_flat
-    h, cell = layer.step_projected(xp.reshape(width, g, -1).transpose(1, 0, 2), h, cell)
-    step1 = kernel.head(h).astype(np.float64)                           # (B, 6)
+    y, (h, cell) = kernel.step(x, (h, cell))
+    step1 = y.astype(np.float64)                                        # (B, 6)
     results = []
     for i, e in enumerate(estimators):
         e._state = (np.ascontiguousarray(h[:, i:i + 1]),

@@ -24,6 +24,7 @@ import torch
 from torch import nn
 
 from wrenchd.models.errors import ConfigError
+from wrenchd.models.estimator.compiled import compiled_step
 
 #: Recurrent state of a kernel: ``(h_1, c_1, h_2, c_2, ...)``, one pair per LSTM layer, each
 #: (G, B, H) for G joint groups, batch B and hidden size H.
@@ -212,6 +213,16 @@ class GroupedRecurrentKernel:
             r, c = r + w.shape[0], c + w.shape[1]
         self.final_weight = block
         self.final_bias = np.concatenate([b for _, b, _ in finals]).astype(self.dtype)
+        # the step compiled with numba where it is installed (compiled.py)
+        self._compiled = compiled_step(self)
+
+    def __getstate__(self) -> dict:
+        # the compiled step stays in its process: the receiver builds its own
+        return {k: v for k, v in self.__dict__.items() if k != "_compiled"}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self._compiled = compiled_step(self)
 
     def initial_state(self, batch: int = 1) -> RecurrentState:
         """Zero state for ``batch`` parallel streams."""
@@ -223,6 +234,8 @@ class GroupedRecurrentKernel:
 
     def step(self, x: np.ndarray, state: RecurrentState) -> tuple[np.ndarray, RecurrentState]:
         """One sample: (B, n_in) raw inputs -> ((B, n_out) outputs, new state)."""
+        if self._compiled is not None:
+            return self._compiled(x, state)
         new: list[np.ndarray] = []
         inp = x.astype(self.dtype, copy=False)
         for k, layer in enumerate(self.layers):

@@ -1,0 +1,147 @@
+"""numba kernels of :mod:`wrenchd.models.estimator.compiled` (imported only where numba is
+installed and wanted; see there for the numerics)."""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+f32 = np.float32
+jit = numba.njit(cache=True, fastmath=True, nogil=True)
+inline = numba.njit(inline="always", fastmath=True, nogil=True)
+
+
+# tanh on float32 as a rational function of x^2 on [-c, c], +-1 beyond: the coefficients
+# of Eigen's generic_fast_tanh_float (Eigen/src/Core/MathFunctionsImpl.h, MPL-2.0).
+@inline
+def tanh32(x):
+    x = min(max(x, f32(-7.90531110763549805)), f32(7.90531110763549805))
+    x2 = x * x
+    p = f32(-2.76076847742355e-16)
+    p = p * x2 + f32(2.00018790482477e-13)
+    p = p * x2 + f32(-8.60467152213735e-11)
+    p = p * x2 + f32(5.12229709037114e-08)
+    p = p * x2 + f32(1.48572235717979e-05)
+    p = p * x2 + f32(6.37261928875436e-04)
+    p = p * x2 + f32(4.89352455891786e-03)
+    q = f32(1.19825839466702e-06)
+    q = q * x2 + f32(1.18534705686654e-04)
+    q = q * x2 + f32(2.26843463243900e-03)
+    q = q * x2 + f32(4.89352518554385e-03)
+    return x * p / q
+
+@inline
+def lstm_layer(x, w, b, h, c):
+    """One LSTM layer of G groups for B streams: x (Gx, B, n_in) with Gx 1 (an input shared
+    by the groups) or G; w (G, n_in + H, 4H) with columns i, f, o, g and the sigmoid gates
+    pre-scaled by 1/2; b (G, 4H); h, c (G, B, H). Returns the new ``(h, c)``."""
+    groups, rows, cols = w.shape
+    streams = h.shape[1]
+    hidden = cols // 4
+    n_in = rows - hidden
+    h_out = np.empty((groups, streams, hidden), np.float32)
+    c_out = np.empty((groups, streams, hidden), np.float32)
+    z = np.empty((streams, cols), np.float32)
+    for g in range(groups):
+        xg = 0 if x.shape[0] == 1 else g
+        for s in range(streams):
+            for j in range(cols):
+                z[s, j] = b[g, j]
+        for i in range(n_in):                  # each weight row read once for all streams
+            for s in range(streams):
+                v = x[xg, s, i]
+                for j in range(cols):
+                    z[s, j] += v * w[g, i, j]
+        for i in range(hidden):
+            for s in range(streams):
+                v = h[g, s, i]
+                for j in range(cols):
+                    z[s, j] += v * w[g, n_in + i, j]
+        for s in range(streams):
+            for j in range(cols):
+                z[s, j] = tanh32(z[s, j])
+            for j in range(hidden):
+                cn = ((f32(0.5) + f32(0.5) * z[s, hidden + j]) * c[g, s, j]
+                      + (f32(0.5) + f32(0.5) * z[s, j]) * z[s, 3 * hidden + j])
+                c_out[g, s, j] = cn
+                h_out[g, s, j] = (f32(0.5) + f32(0.5) * z[s, 2 * hidden + j]) * tanh32(cn)
+    return h_out, c_out
+
+
+@inline
+def heads(top, trunk_w, trunk_b, trunk_n, offsets, final_w, final_b):
+    """The output heads on the last layer's hidden states ``top`` (G, B, H): each group's
+    optional ReLU trunk layer (``trunk_n[g]`` outputs, weights (G, width, H); 0: none, the
+    hidden state passes), then one block-diagonal final layer (n_out, features) over the
+    groups' features (group g's at ``offsets[g]``). Returns (B, n_out)."""
+    groups, streams, hidden = top.shape
+    n_out, n_feats = final_w.shape
+    feats = np.empty(n_feats, np.float32)
+    y = np.empty((streams, n_out), np.float32)
+    for s in range(streams):
+        for g in range(groups):
+            o, n = offsets[g], trunk_n[g]
+            if n == 0:
+                for j in range(hidden):
+                    feats[o + j] = top[g, s, j]
+                continue
+            for j in range(n):
+                acc = trunk_b[g, j]
+                for i in range(hidden):
+                    acc += trunk_w[g, j, i] * top[g, s, i]
+                feats[o + j] = max(acc, f32(0.0))
+        for j in range(n_out):
+            acc = final_b[j]
+            for i in range(n_feats):
+                acc += final_w[j, i] * feats[i]
+            y[s, j] = acc
+    return y
+
+
+@jit
+def layer_step(x, w, b, h, c):
+    """One LSTM layer (:func:`lstm_layer`): ``(h, c)`` new."""
+    return lstm_layer(x, w, b, h, c)
+
+
+@jit
+def heads_step(top, trunk_w, trunk_b, trunk_n, offsets, final_w, final_b):
+    """:func:`heads` on its own (after several layers)."""
+    return heads(top, trunk_w, trunk_b, trunk_n, offsets, final_w, final_b)
+
+
+@jit
+def one_layer_step(x, w, b, h, c, trunk_w, trunk_b, trunk_n, offsets, final_w, final_b):
+    """A one-layer kernel's whole step: ``(y (B, n_out), h, c)``."""
+    h_out, c_out = lstm_layer(x, w, b, h, c)
+    y = heads(h_out, trunk_w, trunk_b, trunk_n, offsets, final_w, final_b)
+    return y, h_out, c_out
+
+
+@jit
+def mlp2_residual(window, step1, w1, b1, w2, b2):
+    """``step1 + W2 relu(W1 [window, step1] + b1) + b2`` for one row, in float32: the
+    correction net with its normalisation folded in. window (W, F) float64, step1 (6,)
+    float32; w1 (hidden, W F + 6), w2 (6, hidden): each output's weights contiguous."""
+    rows, feats = window.shape
+    n_win = rows * feats
+    hidden = w1.shape[0]
+    v = np.empty(n_win + step1.shape[0], np.float32)
+    for r in range(rows):
+        for f in range(feats):
+            v[r * feats + f] = f32(window[r, f])
+    for k in range(step1.shape[0]):
+        v[n_win + k] = step1[k]
+    a = np.empty(hidden, np.float32)
+    for j in range(hidden):
+        acc = b1[j]
+        for i in range(v.shape[0]):
+            acc += w1[j, i] * v[i]
+        a[j] = max(acc, f32(0.0))
+    out = np.empty(w2.shape[0], np.float32)
+    for j in range(w2.shape[0]):
+        acc = b2[j]
+        for i in range(hidden):
+            acc += w2[j, i] * a[i]
+        out[j] = step1[j] + acc
+    return out
