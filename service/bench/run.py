@@ -94,6 +94,9 @@ def run(kind: str, json_path: str | None, duration_s: float, arms: int = 1,
         result = bench_fit(recording, duration_s)
     else:
         raise SystemExit(f"wrenchd bench: unknown benchmark {kind!r}")
+    from wrenchd.models.estimator.compiled import kernels_in_use
+
+    result["kernels"] = kernels_in_use()        # the daemon's too: it inherits the environment
     stamp(result, run=meter)
     text = json.dumps(result, indent=2)
     print(text)
