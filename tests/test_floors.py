@@ -37,7 +37,7 @@ MODELS_MAY_IMPORT = frozenset({
 #: the environment: {file: modules}
 MODELS_FILE_ACCESS = {
     "models/estimator/checkpoint.py": {"os", "pathlib", "pickle"},
-    "models/estimator/compiled.py": {"os"},
+    "models/estimator/compiled.py": {"os", "tempfile"},
     "models/estimator/hybrid.py": {"io", "os"},
     "models/estimator/pretrained.py": {"pathlib"},
     "models/physics/model.py": {"pathlib"},

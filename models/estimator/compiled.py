@@ -15,7 +15,9 @@ relative), not bit for bit; every path that must agree bit for bit with the stre
 estimator calls the same kernel.
 
 numba is optional: without it, or with ``WRENCHD_NUMBA=0`` in the environment, every kernel
-runs on NumPy (:func:`compiled_step` returns None). Compiled functions are cached on disk
+runs on NumPy (:func:`compiled_step` returns None); so it does, with a warning, where numba
+cannot compile or cache them (``NUMBA_CACHE_DIR`` names a writable cache; the systemd unit
+sets one). Compiled functions are cached on disk
 (numba's ``cache=True``) and compiled at most once per process, when the first kernel is
 built (seconds without the cache), not on the first sample served.
 """
@@ -23,6 +25,8 @@ built (seconds without the cache), not on the first sample served.
 from __future__ import annotations
 
 import os
+import tempfile
+import warnings
 from typing import Any, Callable
 
 import numpy as np
@@ -56,16 +60,49 @@ def kernels_in_use() -> str:
 
 
 def _kernels() -> dict[str, Callable] | None:
-    if _numba() is None:
+    numba = _numba()
+    if numba is None:
         return None
     if not _compiled:                    # a race only imports the module twice
-        from wrenchd.models.estimator import compiled_kernels
-
-        _compiled.update(layer=compiled_kernels.layer_step,
-                         heads=compiled_kernels.heads_step,
-                         one_layer=compiled_kernels.one_layer_step,
-                         mlp2=compiled_kernels.mlp2_residual)
+        kernels = _import_kernels(numba)
+        if kernels is None:
+            return None
+        _compiled.update(layer=kernels.layer_step, heads=kernels.heads_step,
+                         one_layer=kernels.one_layer_step, mlp2=kernels.mlp2_residual)
     return _compiled
+
+
+def _import_kernels(numba):
+    """The kernels' module; its functions cache their machine code next to it or in the
+    user's cache, and where neither is writable (a hardened service: a read-only system, no
+    home) numba refuses to define them: then in a cache under the temporary directory, and
+    failing that (or on any other error) None, with a warning: NumPy serves."""
+    try:
+        from wrenchd.models.estimator import compiled_kernels
+        return compiled_kernels
+    except RuntimeError:
+        pass                              # "cannot cache function ...: no locator available"
+    except Exception as exc:  # noqa: BLE001 - the NumPy kernels serve instead
+        warnings.warn(f"compiled kernels unavailable, NumPy serves: {exc}", RuntimeWarning)
+        return None
+    numba.config.CACHE_DIR = os.path.join(tempfile.gettempdir(), f"wrenchd-numba-{os.getuid()}")
+    try:
+        from wrenchd.models.estimator import compiled_kernels
+        return compiled_kernels
+    except Exception as exc:  # noqa: BLE001 - the NumPy kernels serve instead
+        warnings.warn(f"compiled kernels unavailable (no writable cache; set NUMBA_CACHE_DIR), "
+                      f"NumPy serves: {exc}", RuntimeWarning)
+        return None
+
+
+def _built(cls, kernels, source):
+    """``cls(kernels, source)`` (which compiles on first use), or None with a warning where
+    numba fails to compile on this machine: NumPy serves."""
+    try:
+        return cls(kernels, source)
+    except Exception as exc:  # noqa: BLE001 - the NumPy kernels serve instead
+        warnings.warn(f"compiled kernels unavailable, NumPy serves: {exc}", RuntimeWarning)
+        return None
 
 
 class CompiledStep:
@@ -129,9 +166,7 @@ def compiled_step(kernel) -> CompiledStep | None:
     if any(len(trunk) > 1 or (trunk and not trunk[0][2]) for trunk in kernel.trunks):
         return None
     kernels = _kernels()
-    if kernels is None:
-        return None
-    return CompiledStep(kernels, kernel)
+    return None if kernels is None else _built(CompiledStep, kernels, kernel)
 
 
 class CompiledCorrection:
@@ -163,4 +198,4 @@ def compiled_correction(mlp) -> CompiledCorrection | None:
             or any(w.dtype != np.float32 for w, _, _ in layers)):
         return None
     kernels = _kernels()
-    return None if kernels is None else CompiledCorrection(kernels, mlp)
+    return None if kernels is None else _built(CompiledCorrection, kernels, mlp)

@@ -30,6 +30,7 @@ def tanh32(x):
     q = q * x2 + f32(4.89352518554385e-03)
     return x * p / q
 
+
 @inline
 def lstm_layer(x, w, b, h, c):
     """One LSTM layer of G groups for B streams: x (Gx, B, n_in) with Gx 1 (an input shared

@@ -3,6 +3,8 @@ NumPy fallback where numba is missing or switched off."""
 
 from __future__ import annotations
 
+import os
+import shutil
 import subprocess
 import sys
 
@@ -129,11 +131,7 @@ def test_numpy_fallback_in_a_fresh_process(how):
         "assert k._compiled is None, 'compiled kernel built'\n"
         "y, _ = k.step(np.ones((1, 12)), k.initial_state(1))\n"
         "print(compiled.numba_wanted(), float(np.abs(y).sum()))\n")
-    env = None
-    if how == "switched off":
-        import os
-
-        env = {**os.environ, compiled.ENV: "0"}
+    env = {**os.environ, compiled.ENV: "0"} if how == "switched off" else None
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          env=env, timeout=120)
     assert out.returncode == 0, out.stderr
@@ -160,3 +158,32 @@ def test_kernels_travel_without_their_compiled_form(seal):
     corr = Corr(CorrConfig()).eval().kernel()
     blob = pickle.dumps(corr)
     assert b"numba" not in blob and pickle.loads(blob)._compiled is not None
+
+
+@pytest.mark.skipif(not hasattr(os, "geteuid") or os.geteuid() != 0 or not shutil.which("setpriv"),
+                    reason="needs root and setpriv to run a process as another user")
+def test_compiled_where_nothing_next_to_the_module_is_writable():
+    """A hardened service (read-only system, no home): numba cannot cache next to the module
+    nor in the user's cache, and would refuse to define the kernels; they are cached under
+    the temporary directory instead, and the estimator runs compiled."""
+    code = ("from wrenchd.models.estimator.pretrained import load_pretrained\n"
+            "k = load_pretrained('seal').kernel()\n"
+            "print(k._compiled is not None)\n")
+    import tempfile
+    from pathlib import Path
+
+    tmp = Path(tempfile.mkdtemp(prefix="wrenchd-test-"))      # pytest's own is root's alone
+    tmp.chmod(0o1777)
+    env = {"PATH": os.environ.get("PATH", ""), "HOME": "/nonexistent", "TMPDIR": str(tmp),
+           "OMP_NUM_THREADS": "1"}
+    out = subprocess.run(["setpriv", "--reuid=65534", "--regid=65534", "--clear-groups",
+                          sys.executable, "-c", code], capture_output=True, text=True,
+                         env=env, timeout=300, cwd="/")
+    if out.returncode != 0 and "Permission denied" in out.stderr:
+        pytest.skip("the checkout is not readable by another user")
+    try:
+        assert out.returncode == 0, out.stderr
+        assert out.stdout.split() == ["True"]
+        assert list(tmp.glob("wrenchd-numba-65534/**/*.nbi"))
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
