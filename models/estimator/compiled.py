@@ -56,7 +56,7 @@ def _numba():
 
 def kernels_in_use() -> str:
     """``"numba"`` where float32 kernels are compiled in this process, else ``"numpy"``."""
-    return "numba" if _numba() is not None else "numpy"
+    return "numba" if _kernels() is not None else "numpy"
 
 
 def _kernels() -> dict[str, Callable] | None:

@@ -17,6 +17,7 @@ from wrenchd.adapters.messages import (JOINT_STATE_TYPE, WRENCH_TYPE, decode_joi
 from wrenchd.adapters.rmw_zenoh import PUBLISHER, SUBSCRIPTION, Stamper, endpoint
 from wrenchd.adapters.zenoh_io import sample_mark, wire_encoding, zenoh_encoding
 from wrenchd.models.errors import ConfigError, DataError
+from wrenchd.models.estimator.compiled import kernels_in_use
 from wrenchd.models.estimator.free_space import FreeSpaceModel
 from wrenchd.models.series import JOINT_NAMES
 from wrenchd.service.runtime.settings import ArmConfig, ServiceSettings
@@ -144,6 +145,7 @@ class ArmRuntime:
             s["model"].update(self.step1.to_json())
             if self.step1.origin == "simulator" and self.settings.robot != "simulated":
                 s["model"]["warning"] = "a simulator-trained step 1 serves a real arm"
+        s["model"]["kernels"] = kernels_in_use()    # numba (compiled) or numpy
         s["counters"]["dropped"] = self.ring.dropped if self.intake is None else self.intake.full
         s["intake"] = ({"mode": "callback"} if self.intake is None else
                        {"mode": "channel", "key": self.intake.pattern,

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import re
 import signal
@@ -67,6 +68,7 @@ def test_echo_prints_live_wrenches_events_and_status(tmp_path):
     model = answer["model"]
     assert model["spec"] == "seal" and model["origin"] == "simulator" and len(model["digest"]) == 64
     assert model["warning"] == "a simulator-trained step 1 serves a real arm"
+    assert model["kernels"] == ("numba" if importlib.util.find_spec("numba") else "numpy")
     assert "trained on the simulator" in daemon_err
     assert told.returncode == 0, told.stderr
     assert "sent" in told.stdout and "dvrk/PSM2/setup" in told.stdout
