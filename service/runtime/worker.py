@@ -37,6 +37,7 @@ import numpy as np
 
 from wrenchd.models.adaptation import AdaptationConfig, RoundResult
 from wrenchd.models.adaptation.host import SETUP_CALLS
+from wrenchd.models.estimator.compiled import ENV as NUMBA_ENV
 
 _BATCH_S = 0.2          # pipelines send their samples at least this often [s]
 _POLL_S = 0.02          # and look for round results at most this often [s]: polling the
@@ -125,6 +126,9 @@ def _run(inbox: mp.Queue, outbox: mp.Queue, configs: dict[str, dict[str, Any]],
     """Worker process main loop; returns when stopped or when the daemon is gone."""
     if cpus is not None:
         os.sched_setaffinity(0, cpus)
+    # this process never streams: the kernels it builds travel to the daemon, which compiles
+    # its own, so numba (about 100 MB of LLVM) stays out of it
+    os.environ[NUMBA_ENV] = "0"
     checkpoints = checkpoints or Checkpoints()
     from wrenchd.models.estimator.checkpoint import save_checkpoint
     from wrenchd.models.adaptation.host import AdapterHost

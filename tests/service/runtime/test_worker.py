@@ -1,6 +1,7 @@
 """The adaptation worker as a real process: rounds come back, a failing round is reported
 and the worker (and the last good model) carry on, and it stops cleanly."""
 
+import importlib.util
 import os
 import time
 
@@ -33,6 +34,12 @@ def test_worker_rounds_errors_and_stop(tmp_path):
         results = collect(backend, lambda rs: any(r.accepted for r in rs))
         accepted = [r for r in results if r.accepted]
         assert accepted[0].version == 1 and accepted[0].state_dict is not None
+        # the worker builds kernels without numba (it never streams); the daemon's copy of
+        # one compiles where numba is installed
+        maps = open(f"/proc/{worker.process.pid}/maps").read()
+        assert "llvmlite" not in maps and "numba" not in maps
+        kernel = accepted[0].kernel
+        assert (kernel._compiled is not None) == (importlib.util.find_spec("numba") is not None)
         assert (tmp_path / "models" / "PSM1" / "corr-v0001.pt").exists()
         worker.send("fail", "PSM1")                      # the next round throws
         deadline = time.monotonic() + 30
