@@ -136,23 +136,23 @@ class CompiledStep:
         self.offsets = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
         self.final_w = np.ascontiguousarray(kernel.final_weight.T, f32)
         self.final_b = np.ascontiguousarray(kernel.final_bias, f32)
+        self._heads = (self.trunk_w, self.trunk_b, self.trunk_n, self.offsets, self.final_w,
+                       self.final_b)
         # compiled (or read from numba's cache) now, not on the first sample served
         self(np.zeros((1, kernel.layers[0].input_size)), kernel.initial_state(1))
 
     def __call__(self, x: np.ndarray, state) -> tuple[np.ndarray, tuple]:
         inp = np.ascontiguousarray(x, dtype=np.float32)[None]                 # (1, B, n_in)
         state = tuple(np.ascontiguousarray(s) for s in state)
-        heads = (self.trunk_w, self.trunk_b, self.trunk_n, self.offsets, self.final_w,
-                 self.final_b)
         if len(self.weights) == 1:
             y, h, c = self._kernels["one_layer"](inp, self.weights[0], self.biases[0],
-                                                 state[0], state[1], *heads)
+                                                 state[0], state[1], *self._heads)
             return y, (h, c)
         new: list[np.ndarray] = []
         for k, (w, b) in enumerate(zip(self.weights, self.biases)):
             inp, c = self._kernels["layer"](inp, w, b, state[2 * k], state[2 * k + 1])
             new += [inp, c]
-        return self._kernels["heads"](inp, *heads), tuple(new)
+        return self._kernels["heads"](inp, *self._heads), tuple(new)
 
 
 def compiled_step(kernel) -> CompiledStep | None:
