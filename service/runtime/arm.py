@@ -292,6 +292,13 @@ class ArmRuntime:
         except Exception as exc:  # noqa: BLE001 - never let one sample kill the arm
             self.internal_error(exc)
 
+    def log_status(self) -> dict[str, Any]:
+        """The status now, handed to the log writer; returned."""
+        status = self.status()
+        stamp = self.last.stamp_ns if self.last is not None else 0
+        self._log(TOPIC_STATUS, stamp, event_bytes(status))
+        return status
+
     def housekeeping(self, now: float) -> None:
         """Once in a while: rate, status snapshot to the log and console, log problems and
         the files the disk budget removed."""
@@ -300,9 +307,7 @@ class ArmRuntime:
             self.rate_hz = (est - self._count_at) / max(now - self._count_t, 1e-9)
             self._count_at, self._count_t = est, now
             self._next_status = now + self.settings.status_interval_s
-            status = self.status()
-            stamp = self.last.stamp_ns if self.last is not None else 0
-            self._log(TOPIC_STATUS, stamp, event_bytes(status))
+            status = self.log_status()
             if self.live is not None:             # live view: never raises
                 self.live.status(status)
             self._console(status)

@@ -387,6 +387,11 @@ class Daemon:
             self.thread.join(timeout=10.0)
         if self.intake is not None:                # no more samples after this point
             self.intake.close()
+        for arm in self.arms:      # the final counters: even a run stopped in its first
+            try:                   # second (no status yet) leaves a finished log
+                arm.log_status()
+            except Exception:  # noqa: BLE001 - closing must go on
+                pass
         if self.worker is not None:                # asked now, waited for last: its exit
             self.worker.stop()                     # overlaps the logs' closing
         stopping.stage("the arms to close")

@@ -223,6 +223,34 @@ def test_a_worker_that_does_not_stop_is_killed_and_said_so(tmp_path):
     assert len(files) == 1 and not read_session_report(files[0])[1].truncated
 
 
+def test_a_daemon_stopped_at_once_leaves_its_final_status(tmp_path):
+    """SIGTERM right after the daemon listens, before its first status (1 s in): the log
+    still holds one finished file, ending with the final status record."""
+    from mcap.reader import make_reader
+
+    from wrenchd.adapters.mcap_log import TOPIC_STATUS
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    config = write_config(tmp_path / "wrenchd.toml", endpoint, "json", tmp_path / "logs")
+    daemon = subprocess.Popen([sys.executable, "-m", "wrenchd", "serve", "--config",
+                               str(config)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                              text=True)
+    try:
+        _line_with(daemon, "listening", 120.0, "the daemon")
+        daemon.send_signal(signal.SIGTERM)
+    finally:
+        _, err = communicate_within(daemon, 30.0, "the daemon")
+    assert daemon.returncode == 0, err[-2000:]
+    files = sorted((tmp_path / "logs").glob("PSM2-*.mcap"))
+    assert len(files) == 1
+    with open(files[0], "rb") as f:
+        records = [m for _, channel, m in make_reader(f).iter_messages()
+                   if channel.topic == TOPIC_STATUS]
+    assert records
+    text = records[-1].data.decode("utf-8", "replace")
+    assert '"estimated"' in text and '"arm"' in text, text[:300]
+
+
 def test_the_simulated_robot_stops_cleanly_before_it_publishes(tmp_path):
     """SIGTERM while ``wrenchd robot`` simulates its first block or waits for a subscriber
     (none comes) ends it, its recording finished (no samples in it)."""
