@@ -15,9 +15,15 @@ paper's Corr recipe, the realistic handle, a 10 Hz causal output filter with bot
 
 A run that trains step 1 (``--paper``, ``--paper-quick``) saves every recurrent network's
 training under ``OUT/checkpoints/`` after each epoch, and each Corr once trained: the same
-command started again after a stop goes on where it stopped (a file of another recipe or data is refused; remove the
-folder to start afresh). It writes the trained step-1 models under ``OUT/weights/``
-(``Base-seed0.pt``...: estimator checkpoints with their held-out scores, usable as ``--model``).
+command started again after a stop goes on where it stopped (a file of another recipe or data
+is refused; remove the folder to start afresh). It writes the trained step-1 models under
+``OUT/weights/`` (``Base-seed0.pt``...: estimator checkpoints with their held-out scores,
+usable as ``--model``). The checkpoints stay on the machine that wrote them (tens of MB, not
+in version control); each finished (training seed, length) cell's scores go to
+``OUT/cells/`` (a few kB each, committed with the report): a sitting on a fresh clone reads
+those cells instead of training them again, and takes step 1 from ``OUT/weights/`` or, for
+``--paper``'s seed 0, from the shipped ``paper-base`` and ``paper-seal`` when they were trained
+on the same recipe and data size.
 
 Writes ``results.json`` (every number), ``force-rmse-vs-length.png`` (matplotlib, Agg) and
 ``README.md`` (the three tables, the oracle ratios, the fast Corr recipe beside the paper's),
@@ -42,11 +48,26 @@ CHECKPOINTS = "checkpoints"
 WEIGHTS = "weights"
 
 
+def finished_step1(out: Path):
+    """Where a sitting looks for a finished step-1 training of ``name`` and ``seed``: this
+    run's ``weights`` folder, then the shipped paper-scale copy (``paper-base``,
+    ``paper-seal``: the paper-scale run's seed 0, checked against the recipe and data size
+    by :func:`~wrenchd.service.studies.reproduction_training.train_step1`)."""
+    from wrenchd.models.estimator.pretrained import FILES, pretrained_path
+
+    def candidates(name: str, seed: int) -> list[Path]:
+        shipped = f"paper-{name.lower()}"
+        return [out / WEIGHTS / f"{name}-seed{seed}.pt"] + (
+            [pretrained_path(shipped)] if shipped in FILES else [])
+    return candidates
+
+
 def reproduce(args: argparse.Namespace) -> int:
     import torch
 
     from wrenchd.models.estimator.pretrained import load_pretrained
     from wrenchd.service.provenance import RunMeter, stamp
+    from wrenchd.service.studies.reproduction_cells import CELLS
     from wrenchd.service.studies.reproduction import (
         PAPER,
         PAPER_QUICK,
@@ -92,7 +113,10 @@ def reproduce(args: argparse.Namespace) -> int:
                                    checkpoints=(out / CHECKPOINTS if config.step1 is not None
                                                 else None),
                                    weights=out / WEIGHTS if config.step1 is not None else None,
-                                   progress=save)
+                                   progress=save,
+                                   cells=out / CELLS if config.step1 is not None else None,
+                                   finished=finished_step1(out) if config.step1 is not None
+                                   else None)
         wall = save(results)
     print(json.dumps({"out": str(out), "wall_seconds": round(wall, 1)}))
     return 0

@@ -36,6 +36,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from wrenchd.models.estimator.free_space import FreeSpaceModel
 from wrenchd.models.estimator.wrench import WrenchMap
+from wrenchd.service.studies.reproduction_cells import Cell, cell_path, load_cell, save_cell
 from wrenchd.service.studies.reproduction_config import (
     AXES,
     CONFIGS,
@@ -114,15 +115,22 @@ class Collected(BaseModel):
         for name, sc in scores.step1_in_domain.items():
             self.step1_in_domain.setdefault(name, []).append(sc)
 
-    def add_length(self, training: LengthTraining, scores: ModelScores) -> None:
-        """The per-length configurations of one seed and length."""
-        length = training.length_s
-        for name, trained in training.configs.items():
-            self.seconds[name].setdefault(length, []).append(trained.seconds)
-            self.fits[name].setdefault(length, []).append(trained.fit)
-            self.contact[name].setdefault(length, []).append(scores.contact[name])
-        for name, sc in scores.no_contact.items():
+    def add_cell(self, cell: Cell) -> None:
+        """The per-length configurations of one seed and length, trained here or read back."""
+        length = cell.length_s
+        for name, seconds in cell.seconds.items():
+            self.seconds[name].setdefault(length, []).append(seconds)
+            self.fits[name].setdefault(length, []).append(cell.fits[name])
+            self.contact[name].setdefault(length, []).append(cell.scores.contact[name])
+        for name, sc in cell.scores.no_contact.items():
             self.no_contact[name].append(sc)
+
+
+def as_cell(training: LengthTraining, scores: ModelScores) -> Cell:
+    """A length's training and its scores, as :mod:`.reproduction_cells` keeps them."""
+    return Cell(seed=training.seed, length_s=training.length_s,
+                seconds={k: t.seconds for k, t in training.configs.items()},
+                fits={k: t.fit for k, t in training.configs.items()}, scores=scores)
 
 
 def run_reproduction(config: ReproductionConfig, base: FreeSpaceModel | None = None,
@@ -132,7 +140,9 @@ def run_reproduction(config: ReproductionConfig, base: FreeSpaceModel | None = N
                      device: str | None = "cpu",
                      checkpoints: Path | None = None,
                      weights: Path | None = None,
-                     progress: Callable[[ReproductionResult], None] | None = None
+                     progress: Callable[[ReproductionResult], None] | None = None,
+                     cells: Path | None = None,
+                     finished: Callable[[str, int], list[Path]] | None = None
                      ) -> ReproductionResult:
     """Train the per-length configurations, evaluate all six, return the results.
 
@@ -143,7 +153,12 @@ def run_reproduction(config: ReproductionConfig, base: FreeSpaceModel | None = N
     ``progress``: called after every (training seed, length) cell with the result so far
     (its :class:`~wrenchd.service.studies.reproduction_results.Progress` says what is done;
     the tables hold the lengths every configuration has reached): a run of days shows its
-    figures as they come, and a stopped one keeps them.
+    figures as they come, and a stopped one keeps them. ``cells``: a folder where each
+    finished cell's scores are written and read back instead of training it again
+    (:mod:`~wrenchd.service.studies.reproduction_cells`: small files that go into version
+    control, so that a run goes on from a fresh clone, where ``checkpoints`` are gone).
+    ``finished``: finished step-1 trainings to use instead of training them
+    (:func:`~wrenchd.service.studies.reproduction_training.train_step1`).
 
     Data: the trocar training set of length ``L`` is ``L / segment_s`` simulated ``trocar``
     sessions of ``segment_s`` seconds (seeds ``seed + k``; the sets are nested, a longer set
@@ -197,7 +212,8 @@ def run_reproduction(config: ReproductionConfig, base: FreeSpaceModel | None = N
         # scored once too, so that its intervals do not count one network as several
         first = seed == config.training_seeds[0]
         if config.step1 is not None and (first or not once):
-            fits = train_step1(config, seed, sets.step1, device, log, checkpoints, weights)
+            fits = train_step1(config, seed, sets.step1, device, log, checkpoints, weights,
+                               finished)
             base, seal = fits.models["Base"], fits.models["Seal"]
             collected.step1.append(fits.fits)
         if first or not once:
@@ -206,24 +222,32 @@ def run_reproduction(config: ReproductionConfig, base: FreeSpaceModel | None = N
             collected.add_step1(step1_scores, config.lengths_s)
             log_in_domain(scorers, step1_scores, config.output_filter_hz is not None, seed, log)
         for length in config.lengths_s:
-            data = [s.joint_states for s in sets.training[length]]
-            training = train_length(config, seed, length, data, held, base, seal, device,
-                                    checkpoints)
-            longest = length == config.lengths_s[-1]    # no-contact table: the longest set
-            scores = score_models(
-                scorers, {k: (t.step1, t.step2) for k, t in training.configs.items()},
-                ("contact", "no_contact") if longest else ("contact",))
-            for name, trained in training.configs.items():
-                log(f"seed {seed} L={length:g} s {name}: trained in {trained.seconds:.1f} s "
-                    f"({trained.fit.epochs_run} epochs), contact force RMSE "
-                    f"{scores.contact[name]['truth']['rmse'][:, :3].mean():.3f} N")
-            collected.add_length(training, scores)
+            cell = load_cell(cells, config, seed, length) if cells is not None else None
+            if cell is not None:
+                log(f"seed {seed} L={length:g} s: read from "
+                    f"{cell_path(cells, seed, length)}, not trained again")
+            else:
+                data = [s.joint_states for s in sets.training[length]]
+                training = train_length(config, seed, length, data, held, base, seal, device,
+                                        checkpoints)
+                longest = length == config.lengths_s[-1]    # no-contact table: the longest
+                scores = score_models(
+                    scorers, {k: (t.step1, t.step2) for k, t in training.configs.items()},
+                    ("contact", "no_contact") if longest else ("contact",))
+                for name, trained in training.configs.items():
+                    log(f"seed {seed} L={length:g} s {name}: trained in "
+                        f"{trained.seconds:.1f} s ({trained.fit.epochs_run} epochs), contact "
+                        f"force RMSE {scores.contact[name]['truth']['rmse'][:, :3].mean():.3f} N")
+                cell = as_cell(training, scores)
+                if cells is not None:
+                    save_cell(cells, config, cell)
+                if (length == config.lengths_s[0] and config.fast_vs_paper
+                        and seed == config.training_seeds[0]):
+                    collected.fast_vs_paper = fast_vs_paper(
+                        config, base, data, sets.contact, wmap,
+                        wrench_rmse(oracle_torques(sets.contact), sets.contact, wmap), log)
+            collected.add_cell(cell)
             done.append((seed, float(length)))
-            if (length == config.lengths_s[0] and config.fast_vs_paper
-                    and seed == config.training_seeds[0]):
-                collected.fast_vs_paper = fast_vs_paper(
-                    config, base, data, sets.contact, wmap,
-                    wrench_rmse(oracle_torques(sets.contact), sets.contact, wmap), log)
             if progress is not None and len(done) < planned:
                 progress(summarise_run(config, sets, scorers, collected, pretrained_info,
                                        Progress(done=list(done), planned=planned)))

@@ -359,7 +359,8 @@ def _partial(results: ReproductionResult) -> list[str]:
             f"done** ({done}). The tables hold the lengths every configuration has reached, "
             f"each cell over the seeds done there; Table 2 lists a trained configuration once "
             f"a seed has trained it at the longest length ({longest}). The same command goes "
-            "on from the checkpoints.\n"]
+            "on from the finished cells (`cells/`) and, on the machine that ran it, the "
+            "checkpoints.\n"]
 
 
 def _targets(results: ReproductionResult, last: str) -> list[str]:

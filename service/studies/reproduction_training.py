@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
+import shutil
 import time
 from pathlib import Path
 from types import SimpleNamespace
@@ -21,6 +23,7 @@ import torch
 from pydantic import BaseModel, ConfigDict
 
 from wrenchd.models.estimator.checkpoint import (
+    load_checkpoint,
     load_training_state,
     save_result,
     save_training_state,
@@ -71,17 +74,35 @@ def _checkpoint(folder: Path | None, name: str) -> Path | None:
 def train_step1(config: ReproductionConfig, seed: int,
                 sets: dict[str, tuple[list[Session], list[Session]]], device: str | None,
                 log: Callable[[str], None], checkpoints: Path | None = None,
-                weights: Path | None = None) -> Step1Fits:
+                weights: Path | None = None,
+                finished: Callable[[str, int], list[Path]] | None = None) -> Step1Fits:
     """Base and Seal trained with training seed ``seed`` on their free-motion sets,
     early-stopped on the held-out sessions (resumed from ``checkpoints`` when given).
 
     ``weights``: a folder to write each trained model to as an estimator checkpoint
     (``{name}-seed{seed}.pt``, its best weights per joint group with the held-out scores and
-    whether early stopping ended it), loadable wherever a step-1 checkpoint is."""
+    whether early stopping ended it), loadable wherever a step-1 checkpoint is.
+    ``finished(name, seed)``: estimator checkpoints that may hold this very training, finished
+    (a former sitting's ``weights``, the shipped copies): the first one trained on this recipe
+    (its seed included) and on as many series and samples is used, not trained again."""
     st = config.step1
     models, fits = {}, {}
     for name, (train, held) in sets.items():
         rec = seeded_recipe(st.recipe, st.overrides, seed)
+        found = _finished_step1(finished(name, seed) if finished else [], rec, train, held)
+        if found is not None:
+            path, ck = found
+            models[name] = ck.model
+            v = ck.validation
+            fits[name] = Step1Fit(train_seconds=float(v.get("train_seconds", math.nan)),
+                                  score=v["score"], epochs_run=v["epochs_run"])
+            log(f"seed {seed} {name}: finished training read from {path} "
+                f"({v['epochs_run']} epochs, held-out score {v['score']:.4f}), not trained again")
+            target = weights / f"{name}-seed{seed}.pt" if weights is not None else None
+            if target is not None and not (target.exists() and target.samefile(path)):
+                weights.mkdir(parents=True, exist_ok=True)
+                shutil.copyfile(path, target)
+            continue
         start = time.perf_counter()
         res = fit_step1_held_out([s.joint_states for s in train],
                                  [s.joint_states for s in held], rec, device=device,
@@ -99,6 +120,24 @@ def train_step1(config: ReproductionConfig, seed: int,
             log(f"seed {seed} {name}: weights in {weights / f'{name}-seed{seed}.pt'} "
                 f"({'converged' if res.validation.get('converged') else 'not converged'})")
     return Step1Fits(models=models, fits=fits)
+
+
+def _finished_step1(paths: list[Path], rec: TrainConfig, train: list[Session],
+                    held: list[Session]) -> tuple[Path, Any] | None:
+    """The first of ``paths`` that holds a step-1 model trained on recipe ``rec`` with as
+    many training series, samples and held-out series as ``train`` and ``held``, loaded."""
+    size = {"n_series": len(train), "n_samples": sum(len(s.joint_states) for s in train),
+            "held_out_series": len(held)}
+    for path in paths:
+        if not Path(path).is_file():
+            continue
+        ck = load_checkpoint(path)
+        data = ck.data or {}
+        if (ck.kind == "free_space" and ck.train_config == rec
+                and all(data.get(k) == v for k, v in size.items())
+                and {"score", "epochs_run"} <= set(ck.validation or {})):
+            return Path(path), ck
+    return None
 
 
 def _digest(model: torch.nn.Module) -> str:

@@ -2,11 +2,13 @@
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 
 import pytest
 
+from wrenchd.models.errors import DataError
 from wrenchd.models.estimator.checkpoint import load_checkpoint
 from wrenchd.service.studies.reproduction import AXES, CONFIGS, ReproductionResult
 
@@ -126,6 +128,43 @@ def test_paper_quick_records_patients_trials_seeds_intervals_and_both_floors(tmp
                 == r["contact"][name]["40.0"]["scores"]["truth"]["rmse"]["force"])
     assert r2["train_seconds"]["Base+Corr"] == r["train_seconds"]["Base+Corr"]
     assert "progress" not in r2                                  # a complete run has none
+    # a fresh clone: the checkpoints and weights are gone (never committed), the cells are
+    # there, and a finished step-1 training is found elsewhere (here a copy of the weights,
+    # as the shipped paper-scale ones are for --paper): nothing is trained again, every
+    # figure is the same
+    cells = sorted(p.name for p in (out / "cells").glob("*.npz"))
+    assert cells == [f"seed{k}-L{float(x):g}.npz" for k in (0, 1) for x in r["contact"]["Troc"]]
+    kept = tmp_path / "kept"
+    shutil.copytree(out / "weights", kept)
+    shutil.rmtree(out / "checkpoints")
+    shutil.rmtree(out / "weights")
+    from wrenchd.service.studies.reproduction import PAPER_QUICK, run_reproduction
+
+    import torch
+
+    logged: list[str] = []
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)                      # as the command's --threads 1
+    try:
+        r3 = run_reproduction(PAPER_QUICK, log=logged.append, checkpoints=out / "checkpoints",
+                              weights=out / "weights", cells=out / "cells",
+                              finished=lambda name, seed: [kept / f"{name}-seed{seed}.pt"])
+    finally:
+        torch.set_num_threads(threads)
+    assert not list((out / "checkpoints").glob("*.pt"))              # nothing trained
+    assert sum("not trained again" in m for m in logged) == len(cells) + 2   # + Base, Seal
+    assert sorted(p.name for p in (out / "weights").glob("*.pt")) == ["Base-seed0.pt",
+                                                                       "Seal-seed0.pt"]
+    for name in ("Troc", "Seal+Xfer", "Base+Corr", "Seal+Corr", "Base", "Seal"):
+        was = r["contact"][name]["40.0"]["scores"]["truth"]["rmse"]
+        now = r3.contact[name][40.0].scores["truth"]["rmse"]
+        assert now.force == pytest.approx(was["force"], rel=1e-9), name
+        assert now.force_ci95 == pytest.approx(was["force_ci95"], rel=1e-9), name
+    # a cell of another configuration is refused, not mixed in
+    with pytest.raises(DataError, match="another configuration"):
+        run_reproduction(PAPER_QUICK.model_copy(update={"contact_trials": 3}), log=logged.append,
+                         cells=out / "cells",
+                         finished=lambda name, seed: [kept / f"{name}-seed{seed}.pt"])
 
 
 def test_a_run_writes_its_figures_after_every_cell_and_marks_them_partial(tmp_path):
