@@ -184,6 +184,8 @@ class CalibrationPhase:
         # judges the gate's warm-up after the calibration beside the guard, on the corrected
         # residual (calibration_guard.judge_warmup); None: the guard alone
         self._warmup_gate: FreeMotionGate | None = None
+        self._warmup_held = False        # the second gate holds a contact
+        self._warmup_ended = -1          # the guard's contact (its start) the second gate ended
 
     @property
     def calibrating(self) -> bool:
@@ -229,7 +231,9 @@ class CalibrationPhase:
             # the gate takes over from the guard in the middle of a contact: it goes on
             # with it (fresh, it would need a run of samples to find it, and train on them)
             starts = [g.contact_start for g in (self.guard.gate, self._warmup_gate)
-                      if g is not None and g.in_contact]
+                      if g is not None and g.in_contact
+                      and not (g is self.guard.gate and self._warmup_gate is not None
+                               and g.contact_start == self._warmup_ended)]
             if starts:
                 gate.take_over_contact(min(starts), t)
             self._warmup_gate = None
@@ -268,9 +272,19 @@ class CalibrationPhase:
                          guard: GateDecision) -> GateDecision:
         """The guard's verdict on a sample of the gate's warm-up combined with the warm-up
         gate's on the residual Corr leaves (6,) [N m; N]: contact where either calls it,
-        trainable where both let it train."""
+        trainable where both let it train. A contact of the guard's that the warm-up gate
+        held too and has ended is published free from there (the corrected residual says the
+        force is gone; the raw one still carries what Corr takes out), never trainable until
+        the guard ends it as well."""
         g = self._warmup_gate.update(index, t, residual)
+        if g.contact_started >= 0:
+            self._warmup_held = True
+        elif self._warmup_held:                     # it has just ended one
+            self._warmup_held = False
+            self._warmup_ended = guard.contact_started
         if g.free and g.contact_started < 0:
+            if 0 <= guard.contact_started == self._warmup_ended:
+                return guard._replace(free=True, trainable=False)
             return guard
         starts = [s for s in (guard.contact_started, g.contact_started) if s >= 0]
         return GateDecision(False, guard.score, min(starts) if starts else -1, trainable=False)
@@ -326,6 +340,7 @@ class CalibrationPhase:
             # the prior is an in-sample level (Corr trained on those samples): widened as the
             # guard widens the step-1 model's held-out error to seed itself
             self._warmup_gate = FreeMotionGate(self.gate.config)
+            self._warmup_held, self._warmup_ended = False, -1
             self._warmup_gate.seed(self.config.calibration_guard.scale_factor * prior)
             self._warmup_gate.settle(t)
         return n

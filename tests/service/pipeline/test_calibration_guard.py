@@ -272,11 +272,14 @@ def test_a_calibration_shorter_than_the_delay_line_still_trains():
     assert result.status["calibration"]["fit_ratio"] is not None     # judged after it
 
 
-def _warmup_run(judge_warmup: bool) -> tuple[list[bool], list]:
+def _warmup_run(judge_warmup: bool, raw_load_n: float = 0.0,
+                decisions: list | None = None) -> tuple[list[bool], list]:
     """A calibration of 10 s at 200 Hz with a trocar's 2 N swinging in the step-1 residual
     on insertion (the correction net takes it out: the corrected residual is noise), then a
-    3 N insertion contact 1 s into the gate's 5 s warm-up. The verdicts on the contact's
-    samples and the calibrated event."""
+    3 N insertion contact 1 s into the gate's 5 s warm-up (``raw_load_n``: a load in the
+    step-1 residual alone, which step 2 takes out, from the contact's start to 13.5 s). The
+    verdicts on the contact's samples and the calibrated event; ``decisions``: every
+    ``(t, decision)`` from 11 s on."""
     from types import SimpleNamespace
 
     from wrenchd.service.pipeline.calibration import CalibrationPhase
@@ -292,7 +295,7 @@ def _warmup_run(judge_warmup: bool) -> tuple[list[bool], list]:
     line = DelayLine(config.policy)
     rng = np.random.default_rng(0)
     verdicts, events = [], []
-    for k in range(int(13.0 * 200)):
+    for k in range(int((15.0 if decisions is not None else 13.0) * 200)):
         t = k / 200.0
         noise = rng.normal(0.0, 1.0, 6) * heldout
         trocar = np.zeros(6)
@@ -303,12 +306,16 @@ def _warmup_run(judge_warmup: bool) -> tuple[list[bool], list]:
         external = noise + contact                   # what step 2 leaves: noise and contact
         out = SimpleNamespace(step1_torque=np.zeros(6), external_torque=external)
         effort = trocar + external                   # the step-1 residual carries the trocar
+        if 11.0 <= t < 13.5:
+            effort[2] += raw_load_n
         warming = not gate.calibrated
         decision = gate.update(k, t, external)
         decision, calibrating, _ = phase.overrule(k, t, out, effort, decision, warming, events,
                                                   None, 0, line)
         if 11.0 <= t < 12.0:
             verdicts.append(decision.free)
+        if decisions is not None and t >= 11.0:
+            decisions.append((t, decision))
     return verdicts, [e for e in events if e.kind == "calibrated"]
 
 
@@ -322,3 +329,18 @@ def test_the_gates_warm_up_after_the_calibration_is_judged_on_the_corrected_resi
     assert calibrated.detail["gate_prior_samples"] > 1000     # a prior to start from
     assert not any(judged[40:]) and judged.index(False) < 40
     assert sum(not free for free in raw) < 0.5 * sum(not free for free in judged)
+
+
+def test_a_contact_the_corrected_residual_has_ended_is_published_free_while_the_guard_holds():
+    """The guard, on the raw step-1 residual, holds a contact for as long as a load that step
+    2 takes out lasts (here 20 N, over the guard's widened scale, to 13.5 s); once the second
+    gate, on the corrected residual, has ended the 3 N contact it held too (12 s, plus its
+    exit), the rest is published free, and none of it trains until the guard has ended it
+    as well (measured: published free from 12.5 s, the guard's end at 14.0 s)."""
+    decisions: list = []
+    _warmup_run(True, raw_load_n=20.0, decisions=decisions)
+    contact = [t for t, d in decisions if not d.free]
+    assert contact and 11.0 < contact[0] < 11.1 and 12.0 < contact[-1] < 13.0
+    held = [(t, d) for t, d in decisions if contact[-1] < t < 13.5]
+    assert held and all(d.free and d.contact_started >= 0 and not d.trainable for _, d in held)
+    assert any(d.trainable for t, d in decisions if t >= 14.5)    # after the guard's end
