@@ -19,14 +19,19 @@ runs on NumPy (:func:`compiled_step` returns None); so it does, with a warning, 
 cannot compile or cache them (``NUMBA_CACHE_DIR`` names a writable cache; the systemd unit
 sets one). Compiled functions are cached on disk
 (numba's ``cache=True``) and compiled at most once per process, when the first kernel is
-built (seconds without the cache), not on the first sample served.
+built (seconds without the cache), not on the first sample served. Inside
+:func:`deferred_compilation` (a replay: most of its kernels never stream) kernels are built
+without their compiled form and compile on first use instead (:data:`DEFERRED`).
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
 import tempfile
+import threading
 import warnings
+from collections.abc import Iterator
 from typing import Any, Callable
 
 import numpy as np
@@ -37,6 +42,30 @@ from wrenchd.models.estimator.features import N_FEATURES
 ENV = "WRENCHD_NUMBA"
 
 _compiled: dict[str, Any] = {}
+
+#: a kernel's compiled form not built yet: built on the kernel's first use
+DEFERRED = object()
+_defer = threading.local()
+
+
+@contextlib.contextmanager
+def deferred_compilation() -> Iterator[None]:
+    """Kernels built in this thread inside the block compile on first use, not when built:
+    a process that builds kernels it may never stream with (a replay, whose step 1 runs in
+    batches and whose correction nets arrive with every accepted round) does not pay numba's
+    import and cache load for them."""
+    before = getattr(_defer, "on", False)
+    _defer.on = True
+    try:
+        yield
+    finally:
+        _defer.on = before
+
+
+def compile_now() -> bool:
+    """Whether a kernel built now builds its compiled form now (outside
+    :func:`deferred_compilation`)."""
+    return not getattr(_defer, "on", False)
 
 
 def numba_wanted() -> bool:

@@ -25,7 +25,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator
 from torch import nn
 
 from wrenchd.models.errors import ConfigError, DataError
-from wrenchd.models.estimator.compiled import compiled_correction
+from wrenchd.models.estimator.compiled import DEFERRED, compile_now, compiled_correction
 from wrenchd.models.estimator.features import N_FEATURES, history_windows
 from wrenchd.models.estimator.free_space import MIN_STD, FreeSpaceModel, GroupedTorqueModel, check_groups
 from wrenchd.models.estimator.kernels import GroupedRecurrentKernel, LSTMLayerKernel, MLPKernel
@@ -187,8 +187,8 @@ class CorrKernel:
              (f64["net.2.weight"], f64["net.2.bias"], False)], dtype,
             in_shift=shift, in_scale=scale, out_shift=np.zeros(N_JOINTS),
             out_scale=f64["tau_std"])
-        # one row compiled with numba where it is installed (compiled.py)
-        self._compiled = compiled_correction(self.mlp)
+        # one row compiled with numba where it is installed (compiled.py), now or on first use
+        self._compiled = compiled_correction(self.mlp) if compile_now() else DEFERRED
 
     def __getstate__(self) -> dict:
         # the compiled form stays in its process: the receiver builds its own
@@ -196,13 +196,16 @@ class CorrKernel:
 
     def __setstate__(self, state: dict) -> None:
         self.__dict__.update(state)
-        self._compiled = compiled_correction(self.mlp)
+        self._compiled = compiled_correction(self.mlp) if compile_now() else DEFERRED
 
     def correct(self, windows: np.ndarray, step1: np.ndarray) -> np.ndarray:
         """(B, W, 12) raw windows, (B, 6) step-1 torques -> (B, 6) corrected torques."""
         b = step1.shape[0]
-        if b == 1 and self._compiled is not None:
-            out = self._compiled(windows[0], step1[0])[None, :]
+        compiled = self._compiled
+        if b == 1 and compiled is DEFERRED:
+            compiled = self._compiled = compiled_correction(self.mlp)
+        if b == 1 and compiled is not None:
+            out = compiled(windows[0], step1[0])[None, :]
         else:
             v = np.concatenate([windows.reshape(b, -1), step1], axis=1).astype(self.dtype,
                                                                               copy=False)

@@ -24,7 +24,7 @@ import torch
 from torch import nn
 
 from wrenchd.models.errors import ConfigError
-from wrenchd.models.estimator.compiled import compiled_step
+from wrenchd.models.estimator.compiled import DEFERRED, compile_now, compiled_step
 
 #: Recurrent state of a kernel: ``(h_1, c_1, h_2, c_2, ...)``, one pair per LSTM layer, each
 #: (G, B, H) for G joint groups, batch B and hidden size H.
@@ -213,8 +213,8 @@ class GroupedRecurrentKernel:
             r, c = r + w.shape[0], c + w.shape[1]
         self.final_weight = block
         self.final_bias = np.concatenate([b for _, b, _ in finals]).astype(self.dtype)
-        # the step compiled with numba where it is installed (compiled.py)
-        self._compiled = compiled_step(self)
+        # the step compiled with numba where it is installed (compiled.py), now or on first use
+        self._compiled = compiled_step(self) if compile_now() else DEFERRED
 
     def __getstate__(self) -> dict:
         # the compiled step stays in its process: the receiver builds its own
@@ -222,7 +222,7 @@ class GroupedRecurrentKernel:
 
     def __setstate__(self, state: dict) -> None:
         self.__dict__.update(state)
-        self._compiled = compiled_step(self)
+        self._compiled = compiled_step(self) if compile_now() else DEFERRED
 
     def initial_state(self, batch: int = 1) -> RecurrentState:
         """Zero state for ``batch`` parallel streams."""
@@ -234,8 +234,11 @@ class GroupedRecurrentKernel:
 
     def step(self, x: np.ndarray, state: RecurrentState) -> tuple[np.ndarray, RecurrentState]:
         """One sample: (B, n_in) raw inputs -> ((B, n_out) outputs, new state)."""
-        if self._compiled is not None:
-            return self._compiled(x, state)
+        compiled = self._compiled
+        if compiled is DEFERRED:
+            compiled = self._compiled = compiled_step(self)
+        if compiled is not None:
+            return compiled(x, state)
         new: list[np.ndarray] = []
         inp = x.astype(self.dtype, copy=False)
         for k, layer in enumerate(self.layers):

@@ -36,6 +36,7 @@ import numpy as np
 import torch
 
 from wrenchd.models.errors import ConfigError
+from wrenchd.models.estimator.compiled import deferred_compilation
 from wrenchd.models.estimator.estimator import EstimatorOutput, TwoStepEstimator
 from wrenchd.models.estimator.features import segment_starts
 from wrenchd.models.estimator.free_space import FreeSpaceModel
@@ -295,6 +296,15 @@ def replay(session: Session, free_space: FreeSpaceModel, config: PipelineConfig 
     config = config if config is not None else PipelineConfig()
     if adaptation not in ("worker", "inline"):
         raise ConfigError(f"adaptation must be 'worker' or 'inline', got {adaptation!r}")
+    # step 1 runs in batches and each accepted round brings a correction net: the compiled
+    # forms of the kernels are built where a kernel first streams, if ever
+    with deferred_compilation():
+        return _replay(session, free_space, config, policy, batched, arm, block, step1,
+                       adaptation, result_delay_s, pipeline_hook, setup_changes)
+
+
+def _replay(session, free_space, config, policy, batched, arm, block, step1, adaptation,
+            result_delay_s, pipeline_hook, setup_changes) -> ReplayResult:
     msgs = joint_state_messages(session.joint_states)
     backend = None
     if (adaptation == "worker" and config.adaptation.enabled

@@ -160,6 +160,40 @@ def test_kernels_travel_without_their_compiled_form(seal):
     assert b"numba" not in blob and pickle.loads(blob)._compiled is not None
 
 
+def test_kernels_built_in_a_deferred_block_compile_on_first_use(seal, stream):
+    """Inside ``deferred_compilation`` (a replay) kernels are built, unpickled and copied
+    without their compiled form; the first streaming step or one-row correction builds it,
+    and the numbers are those of a kernel compiled when built. The block leaves the
+    thread as it found it."""
+    import pickle
+
+    eager = seal.kernel()
+    corr = Corr(CorrConfig()).eval()
+    with compiled.deferred_compilation():
+        with compiled.deferred_compilation():
+            pass
+        assert not compiled.compile_now()                 # still deferred after a nested one
+        lazy = seal.kernel()
+        lazy_corr = corr.kernel()
+        unpickled = pickle.loads(pickle.dumps(eager))
+    assert compiled.compile_now()
+    for kernel in (lazy, lazy_corr, unpickled):
+        assert kernel._compiled is compiled.DEFERRED
+    x = stream[:50]
+    np.testing.assert_array_equal(_run(lazy, x), _run(eager, x))
+    assert lazy._compiled is not None and lazy._compiled is not compiled.DEFERRED
+    windows = np.stack([stream[:corr.window]])
+    step1 = np.zeros((1, 6), np.float32)
+    np.testing.assert_array_equal(lazy_corr.correct(windows, step1),
+                                  corr.kernel().correct(windows, step1))
+    assert lazy_corr._compiled is not compiled.DEFERRED
+    # a batch never builds it (the batched path is NumPy's)
+    with compiled.deferred_compilation():
+        batch_only = corr.kernel()
+    batch_only.correct(np.repeat(windows, 2, axis=0), np.zeros((2, 6), np.float32))
+    assert batch_only._compiled is compiled.DEFERRED
+
+
 @pytest.mark.skipif(not hasattr(os, "geteuid") or os.geteuid() != 0 or not shutil.which("setpriv"),
                     reason="needs root and setpriv to run a process as another user")
 def test_compiled_where_nothing_next_to_the_module_is_writable():
