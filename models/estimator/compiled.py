@@ -29,7 +29,6 @@ from __future__ import annotations
 import contextlib
 import os
 import tempfile
-import threading
 import warnings
 from collections.abc import Iterator
 from typing import Any, Callable
@@ -45,27 +44,26 @@ _compiled: dict[str, Any] = {}
 
 #: a kernel's compiled form not built yet: built on the kernel's first use
 DEFERRED = object()
-_defer = threading.local()
+_deferring = [0]            # how many deferred_compilation blocks are open in this process
 
 
 @contextlib.contextmanager
 def deferred_compilation() -> Iterator[None]:
-    """Kernels built in this thread inside the block compile on first use, not when built:
-    a process that builds kernels it may never stream with (a replay, whose step 1 runs in
-    batches and whose correction nets arrive with every accepted round) does not pay numba's
-    import and cache load for them."""
-    before = getattr(_defer, "on", False)
-    _defer.on = True
+    """Kernels built while the block is open (in this process, by any thread) compile on
+    first use, not when built: a process that builds kernels it may never stream with (a
+    replay, whose step 1 runs in batches and whose correction nets arrive with every
+    accepted round) does not pay numba's import and cache load for them."""
+    _deferring[0] += 1
     try:
         yield
     finally:
-        _defer.on = before
+        _deferring[0] -= 1
 
 
 def compile_now() -> bool:
-    """Whether a kernel built now builds its compiled form now (outside
-    :func:`deferred_compilation`)."""
-    return not getattr(_defer, "on", False)
+    """Whether a kernel built now builds its compiled form now (no
+    :func:`deferred_compilation` block open)."""
+    return not _deferring[0]
 
 
 def numba_wanted() -> bool:

@@ -163,8 +163,8 @@ def test_kernels_travel_without_their_compiled_form(seal):
 def test_kernels_built_in_a_deferred_block_compile_on_first_use(seal, stream):
     """Inside ``deferred_compilation`` (a replay) kernels are built, unpickled and copied
     without their compiled form; the first streaming step or one-row correction builds it,
-    and the numbers are those of a kernel compiled when built. The block leaves the
-    thread as it found it."""
+    and the numbers are those of a kernel compiled when built. Closing the block (nested
+    or not) leaves the process as it found it."""
     import pickle
 
     eager = seal.kernel()
