@@ -48,17 +48,18 @@ CHECKPOINTS = "checkpoints"
 WEIGHTS = "weights"
 
 
-def finished_step1(out: Path):
+def finished_step1(out: Path, paper: bool):
     """Where a sitting looks for a finished step-1 training of ``name`` and ``seed``: this
-    run's ``weights`` folder, then the shipped paper-scale copy (``paper-base``,
-    ``paper-seal``: the paper-scale run's seed 0, checked against the recipe and data size
-    by :func:`~wrenchd.service.studies.reproduction_training.train_step1`)."""
+    run's ``weights`` folder, then, for the paper-scale run as it is defined (``paper``: no
+    option changed it), the shipped copy of its seed 0 (``paper-base``, ``paper-seal``;
+    checked against the recipe, seed included, and the data size by
+    :func:`~wrenchd.service.studies.reproduction_training.train_step1`)."""
     from wrenchd.models.estimator.pretrained import FILES, pretrained_path
 
     def candidates(name: str, seed: int) -> list[Path]:
         shipped = f"paper-{name.lower()}"
         return [out / WEIGHTS / f"{name}-seed{seed}.pt"] + (
-            [pretrained_path(shipped)] if shipped in FILES else [])
+            [pretrained_path(shipped)] if paper and shipped in FILES else [])
     return candidates
 
 
@@ -115,8 +116,8 @@ def reproduce(args: argparse.Namespace) -> int:
                                    weights=out / WEIGHTS if config.step1 is not None else None,
                                    progress=save,
                                    cells=out / CELLS if config.step1 is not None else None,
-                                   finished=finished_step1(out) if config.step1 is not None
-                                   else None)
+                                   finished=(finished_step1(out, config == PAPER)
+                                             if config.step1 is not None else None))
         wall = save(results)
     print(json.dumps({"out": str(out), "wall_seconds": round(wall, 1)}))
     return 0

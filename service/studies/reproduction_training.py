@@ -36,6 +36,7 @@ from wrenchd.models.estimator.training import TrainConfig, recipe
 from wrenchd.models.estimator.wrench import WrenchMap
 from wrenchd.models.series import JointStates, Session
 from wrenchd.service.runtime import stopping
+from wrenchd.service.studies.reproduction_cells import fingerprint
 from wrenchd.service.studies.reproduction_config import TRAINED, ReproductionConfig
 from wrenchd.service.studies.reproduction_results import FastVsPaper, Fit, RecipeRun, Step1Fit
 from wrenchd.service.studies.reproduction_scoring import predicted_torques, wrench_rmse
@@ -89,7 +90,8 @@ def train_step1(config: ReproductionConfig, seed: int,
     models, fits = {}, {}
     for name, (train, held) in sets.items():
         rec = seeded_recipe(st.recipe, st.overrides, seed)
-        found = _finished_step1(finished(name, seed) if finished else [], rec, train, held)
+        found = _finished_step1(finished(name, seed) if finished else [], rec, train, held,
+                                fingerprint(config))
         if found is not None:
             path, ck = found
             models[name] = ck.model
@@ -116,6 +118,9 @@ def train_step1(config: ReproductionConfig, seed: int,
             f"held-out score {res.validation['score']:.4f}")
         if weights is not None:
             weights.mkdir(parents=True, exist_ok=True)
+            # the run's configuration with the weights: a later sitting of another one
+            # (another patient draw, the same sizes) does not take them for its own
+            res.data = {**(res.data or {}), "reproduction": fingerprint(config)}
             save_result(weights / f"{name}-seed{seed}.pt", res)
             log(f"seed {seed} {name}: weights in {weights / f'{name}-seed{seed}.pt'} "
                 f"({'converged' if res.validation.get('converged') else 'not converged'})")
@@ -123,9 +128,11 @@ def train_step1(config: ReproductionConfig, seed: int,
 
 
 def _finished_step1(paths: list[Path], rec: TrainConfig, train: list[Session],
-                    held: list[Session]) -> tuple[Path, Any] | None:
+                    held: list[Session], run: str) -> tuple[Path, Any] | None:
     """The first of ``paths`` that holds a step-1 model trained on recipe ``rec`` with as
-    many training series, samples and held-out series as ``train`` and ``held``, loaded."""
+    many training series, samples and held-out series as ``train`` and ``held``, and, where
+    it names the configuration of the run that trained it, by a run of this one (``run``,
+    its :func:`~wrenchd.service.studies.reproduction_cells.fingerprint`), loaded."""
     size = {"n_series": len(train), "n_samples": sum(len(s.joint_states) for s in train),
             "held_out_series": len(held)}
     for path in paths:
@@ -135,6 +142,7 @@ def _finished_step1(paths: list[Path], rec: TrainConfig, train: list[Session],
         data = ck.data or {}
         if (ck.kind == "free_space" and ck.train_config == rec
                 and all(data.get(k) == v for k, v in size.items())
+                and data.get("reproduction", run) == run
                 and {"score", "epochs_run"} <= set(ck.validation or {})):
             return Path(path), ck
     return None

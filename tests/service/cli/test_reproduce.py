@@ -139,6 +139,7 @@ def test_paper_quick_records_patients_trials_seeds_intervals_and_both_floors(tmp
     shutil.rmtree(out / "checkpoints")
     shutil.rmtree(out / "weights")
     from wrenchd.service.studies.reproduction import PAPER_QUICK, run_reproduction
+    from wrenchd.service.studies.reproduction_cells import fingerprint
 
     import torch
 
@@ -160,11 +161,15 @@ def test_paper_quick_records_patients_trials_seeds_intervals_and_both_floors(tmp
         now = r3.contact[name][40.0].scores["truth"]["rmse"]
         assert now.force == pytest.approx(was["force"], rel=1e-9), name
         assert now.force_ci95 == pytest.approx(was["force_ci95"], rel=1e-9), name
-    # a cell of another configuration is refused, not mixed in
+    # the weights name the configuration that trained them; a cell of another
+    # configuration is refused, not mixed in
+    assert load_checkpoint(kept / "Base-seed0.pt").data["reproduction"] == fingerprint(PAPER_QUICK)
+    other: list[str] = []
     with pytest.raises(DataError, match="another configuration"):
-        run_reproduction(PAPER_QUICK.model_copy(update={"contact_trials": 3}), log=logged.append,
+        run_reproduction(PAPER_QUICK.model_copy(update={"contact_trials": 3}), log=other.append,
                          cells=out / "cells",
                          finished=lambda name, seed: [kept / f"{name}-seed{seed}.pt"])
+    assert not any("finished training read" in m for m in other)   # its step 1 trained anew
 
 
 def test_a_run_writes_its_figures_after_every_cell_and_marks_them_partial(tmp_path):
