@@ -210,3 +210,21 @@ def test_a_run_writes_its_figures_after_every_cell_and_marks_them_partial(tmp_pa
     assert final.progress is None and final.lengths == [20.0, 40.0]
     assert final.contact["Troc"][40.0].seeds == 2
     assert "Partial run" not in markdown(final, "wrenchd reproduce --paper-quick", 1.0)
+
+
+def test_a_damaged_or_foreign_cell_file_is_refused_with_its_path(tmp_path):
+    """A cell file cut short, or an ``.npz`` that is not a cell, is refused with a DataError
+    that names it; a missing one is simply not there (None)."""
+    import numpy as np
+
+    from wrenchd.service.studies.reproduction import PAPER_QUICK
+    from wrenchd.service.studies.reproduction_cells import cell_path, load_cell
+
+    assert load_cell(tmp_path, PAPER_QUICK, 0, 20.0) is None
+    path = cell_path(tmp_path, 0, 20.0)
+    path.write_bytes(b"PK\x03\x04 cut short")
+    with pytest.raises(DataError, match=str(path.name)):
+        load_cell(tmp_path, PAPER_QUICK, 0, 20.0)
+    np.savez(path, x=np.zeros(3))
+    with pytest.raises(DataError, match="not a reproduction cell"):
+        load_cell(tmp_path, PAPER_QUICK, 0, 20.0)
