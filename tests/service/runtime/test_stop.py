@@ -197,14 +197,18 @@ def test_sigterm_stops_everything_cleanly(tmp_path, robot):
     assert elapsed < HANG_S, elapsed
 
 
+def _start_daemon(tmp: Path) -> subprocess.Popen:
+    """``wrenchd serve`` on a free port, JSON wire, its log under ``tmp/logs``."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    config = write_config(tmp / "wrenchd.toml", endpoint, "json", tmp / "logs")
+    return subprocess.Popen([sys.executable, "-m", "wrenchd", "serve", "--config", str(config)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
 def test_a_worker_that_does_not_stop_is_killed_and_said_so(tmp_path):
     """The daemon's adaptation worker is frozen (SIGSTOP): at SIGTERM the daemon waits its
     bound for it, kills it, says so on stderr, and still finishes its log and exits 0."""
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    config = write_config(tmp_path / "wrenchd.toml", endpoint, "json", tmp_path / "logs")
-    daemon = subprocess.Popen([sys.executable, "-m", "wrenchd", "serve", "--config",
-                               str(config)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                              text=True)
+    daemon = _start_daemon(tmp_path)
     try:
         _line_with(daemon, "listening", 120.0, "the daemon")
         # the worker lowers its priority once started
@@ -230,11 +234,7 @@ def test_a_daemon_stopped_at_once_leaves_its_final_status(tmp_path):
 
     from wrenchd.adapters.mcap_log import TOPIC_STATUS
 
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    config = write_config(tmp_path / "wrenchd.toml", endpoint, "json", tmp_path / "logs")
-    daemon = subprocess.Popen([sys.executable, "-m", "wrenchd", "serve", "--config",
-                               str(config)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                              text=True)
+    daemon = _start_daemon(tmp_path)
     try:
         _line_with(daemon, "listening", 120.0, "the daemon")
         daemon.send_signal(signal.SIGTERM)
