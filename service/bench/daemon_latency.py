@@ -90,6 +90,26 @@ def _cpu_s(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
+#: what :func:`_zenoh_thread_classes` calls each scheduling policy
+_POLICIES = {os.SCHED_OTHER: "normal", os.SCHED_FIFO: "fifo", os.SCHED_RR: "rr",
+             os.SCHED_BATCH: "batch", os.SCHED_IDLE: "idle"}
+
+
+def _zenoh_thread_classes() -> list[str]:
+    """The scheduling classes of this process's zenoh receive and send threads (``rx-*``,
+    ``tx-*``), which run the subscriber callbacks that time each wrench's arrival: sorted,
+    each once."""
+    seen = set()
+    for task in Path("/proc/self/task").iterdir():
+        try:
+            name = (task / "comm").read_text().strip()
+            if name.startswith(("rx-", "tx-")):
+                seen.add(_POLICIES.get(os.sched_getscheduler(int(task.name)), "other"))
+        except (OSError, ValueError):
+            continue                                  # a thread that has just ended
+    return sorted(seen)
+
+
 def _cpu_now(pid: int) -> dict[str, float]:
     """CPU seconds of the daemon and of its children (the worker), with the wall clock."""
     return {"daemon": _cpu_s(pid), "worker": sum(_cpu_s(c) for c in _children(pid)),
@@ -182,7 +202,10 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
     and this process's publisher and subscriber take the same: a robot's publisher runs in the
     real-time class, and a bench left in the normal class would be measured waiting behind the
     machine's other work (under load, its p99 is several times the one with both in the
-    real-time class). The floor bench runs in the normal class. ``intake`` is the daemon's
+    real-time class). The floor (and this process beside it) takes the class the daemon
+    would. Only a process's first session makes zenoh's runtime threads, in the class of the
+    thread that opens it: run a bench in a process that opened none before (as
+    :func:`~wrenchd.service.bench.ratio.bench_ratio` does). ``intake`` is the daemon's
     ``[ring] intake`` (and the floor's). With ``split_s`` the result also has ``phases``: the
     latency and CPU figures of the samples sent before ``split_s`` (after the warm-up; the
     daemon's calibration minute when it is ``calibration_s``) and of those after it."""
@@ -214,7 +237,7 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
     _config(workdir / "bench.toml", endpoint, arms, workdir / "logs", adaptation, log, placement,
             realtime, intake)
     command = ([sys.executable, "-m", "wrenchd.service.bench.floor", "--listen", endpoint,
-                "--intake", intake, "--arms", *arms] if floor else
+                "--intake", intake, "--realtime", str(realtime), "--arms", *arms] if floor else
                [sys.executable, "-m", "wrenchd", "serve", "--config",
                 str(workdir / "bench.toml")])
     daemon = subprocess.Popen(
@@ -225,13 +248,17 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
     session = None
     bench_priority = None
     status: dict[str, Any] = {}
+    callback_classes: list[str] = []
     drains: list[threading.Thread] = []
     try:
         _await_listening(daemon, len(arms), START_TIMEOUT_S)
         drains = [_drain(daemon.stdout, workdir / "daemon.out"),
                   _drain(daemon.stderr, workdir / "daemon.err")]
-        # as the daemon's setting says (its default takes the real-time class where it may)
-        bench_priority = None if floor else enter_realtime(realtime)
+        # as the daemon's setting says (its default takes the real-time class where it may),
+        # the floor's too; before this process's first session opens: zenoh's runtime threads,
+        # which run the subscriber callbacks, are made then, in the class of the thread that
+        # opens it, and serve every later session of the process (see bench_ratio)
+        bench_priority = enter_realtime(realtime)
         if bench_priority is not None:
             for thread in drains:          # they take the GIL too, beside the callbacks
                 realtime_below(bench_priority, thread.native_id)
@@ -243,6 +270,7 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
             for arm in arms]
         pubs = {arm: session.declare_publisher(f"dvrk/{arm}/measured_js") for arm in arms}
         time.sleep(1.0)                                     # let the routes settle
+        callback_classes = _zenoh_thread_classes()
         period_ns = int(1e9 / rate_hz)
         # Pace by sleeping, never by spinning: a spinning publisher holds the GIL and delays
         # this process's own subscriber callbacks, which would be measured as daemon latency.
@@ -404,8 +432,10 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
             "daemon": "bench floor (no estimation)" if floor else "wrenchd serve",
             "cpus": ({"daemon": placement[0], "worker_and_bench": placement[1]}
                      if placement else None),
-            # the daemon's sample path (its default takes the real-time class where permitted)
-            "realtime_priority": None if floor else next(
+            # the daemon's sample path (its default takes the real-time class where
+            # permitted); the floor's is the setting it was given
+            "realtime_priority": realtime if floor else next(
                 (st.get("realtime_priority") for st in status.values()), realtime),
             "bench_realtime_priority": bench_priority,
+            "bench_zenoh_thread_classes": callback_classes,
             "e2e_by_second": by_second, "per_arm": per_arm}

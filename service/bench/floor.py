@@ -9,7 +9,9 @@ service`` measures against it is what zenoh on loopback, the hand-off to the thr
 and this machine's scheduling cost before any estimation: the part of the daemon's latency
 that no faster estimator can remove.
 
-Run by the bench as ``python -m wrenchd.service.bench.floor --listen ENDPOINT --arms PSM1 ...``.
+Run by the bench as ``python -m wrenchd.service.bench.floor --listen ENDPOINT --arms PSM1 ...
+--realtime SETTING``: in the scheduling class the daemon would take, as the daemon does, from
+before its session opens.
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ from wrenchd.adapters.zenoh_io import ZenohConfig, open_session
 from wrenchd.service.runtime.intake import ChannelIntake
 from wrenchd.service.runtime.stopping import StopSignals
 from wrenchd.service.runtime.plumbing import SWITCH_INTERVAL_S, SampleRing
+from wrenchd.service.runtime.scheduling import enter_realtime
 
 _ZERO = np.zeros(6)
 
@@ -63,9 +66,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--listen", required=True, help="zenoh endpoint to listen on")
     parser.add_argument("--arms", nargs="+", default=["PSM1"])
     parser.add_argument("--intake", choices=["channel", "callback"], default="channel")
+    parser.add_argument("--realtime", default="off",
+                        help="as the daemon's [cpus] realtime_priority: auto, off or a "
+                             "SCHED_FIFO priority, taken before the session opens so that "
+                             "zenoh's threads and the answering thread inherit it")
     args = parser.parse_args(argv)
     sys.setswitchinterval(SWITCH_INTERVAL_S)
     stop, wake = threading.Event(), threading.Event()
+    enter_realtime(args.realtime if args.realtime in ("auto", "off") else int(args.realtime))
     session = open_session(ZenohConfig(listen=[args.listen]))
     pubs = {arm: session.declare_publisher(f"dvrk/{arm}/wrenchd/measured_cf")
             for arm in args.arms}

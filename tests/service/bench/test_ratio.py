@@ -13,6 +13,13 @@ def test_a_pair_gives_ratios_overall_and_per_phase():
                     warmup_s=2.0)
     (run,) = r["runs"]
     assert run["floor"]["daemon"].startswith("bench floor") and r["dropped"] == 0
+    # both measured alike: the same class for the floor and the daemon, and for the bench's
+    # own callbacks (each run in a process whose zenoh threads it made itself)
+    assert run["floor"]["realtime_priority"] == "auto"
+    assert run["floor"]["bench_realtime_priority"] == run["daemon"]["bench_realtime_priority"]
+    expected = ["normal"] if run["daemon"]["bench_realtime_priority"] is None else ["fifo"]
+    for w in ("floor", "daemon"):
+        assert run[w]["bench_zenoh_thread_classes"] == expected
     phases = run["daemon"]["phases"]
     assert phases["split_s"] == 5.0
     for name in ("before", "after"):
