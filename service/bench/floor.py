@@ -25,6 +25,7 @@ import orjson
 
 from wrenchd.adapters.messages import encode_wrench
 from wrenchd.adapters.zenoh_io import ZenohConfig, open_session
+from wrenchd.service.cli.bench import realtime_setting
 from wrenchd.service.runtime.intake import ChannelIntake
 from wrenchd.service.runtime.stopping import StopSignals
 from wrenchd.service.runtime.plumbing import SWITCH_INTERVAL_S, SampleRing
@@ -66,14 +67,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--listen", required=True, help="zenoh endpoint to listen on")
     parser.add_argument("--arms", nargs="+", default=["PSM1"])
     parser.add_argument("--intake", choices=["channel", "callback"], default="channel")
-    parser.add_argument("--realtime", default="off",
+    parser.add_argument("--realtime", type=realtime_setting, default="off",
                         help="as the daemon's [cpus] realtime_priority: auto, off or a "
                              "SCHED_FIFO priority, taken before the session opens so that "
                              "zenoh's threads and the answering thread inherit it")
     args = parser.parse_args(argv)
     sys.setswitchinterval(SWITCH_INTERVAL_S)
     stop, wake = threading.Event(), threading.Event()
-    enter_realtime(args.realtime if args.realtime in ("auto", "off") else int(args.realtime))
+    enter_realtime(args.realtime)
     session = open_session(ZenohConfig(listen=[args.listen]))
     pubs = {arm: session.declare_publisher(f"dvrk/{arm}/wrenchd/measured_cf")
             for arm in args.arms}

@@ -61,9 +61,9 @@ def register(sub) -> None:
                         "and the bench on the others (the daemon's [cpus] settings)")
     p.add_argument("--realtime", type=realtime_setting, default="auto",
                    metavar="auto|off|PRIORITY",
-                   help="service/soak: the daemon's [cpus] realtime_priority, which this "
-                        "bench's publisher and subscriber take too (default auto: "
-                        "SCHED_FIFO where permitted)")
+                   help="service/soak/floor/ratio: the daemon's [cpus] realtime_priority, "
+                        "which the floor and this bench's publisher and subscriber take too "
+                        "(default auto: SCHED_FIFO where permitted)")
     p.add_argument("--intake", choices=["channel", "callback"], default="channel",
                    help="service/soak/floor: how the daemon takes its joint states ([ring] "
                         "intake; default channel, the daemon's default)")
