@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 from wrenchd.service.cli.choices import POLICY_CHOICES
@@ -32,9 +33,15 @@ def replay_session(args: argparse.Namespace) -> int:
 
     config = get_policy(args.policy).configure(load_pipeline_config(args.config, args.seed))
     session = load_session(args.session)
+    n = len(session.joint_states.t)
+
+    def estimating(_pipeline) -> None:      # the session is loaded: say so before the long part
+        print(f"wrenchd replay: estimating {n} samples of {args.session} "
+              f"(Ctrl-C stops between batches)", file=sys.stderr, flush=True)
+
     r = replay(session, load_free_space(args.model), config, policy=args.policy,
                batched=not args.streaming, adaptation=args.adaptation,
-               result_delay_s=args.result_delay,
+               result_delay_s=args.result_delay, pipeline_hook=estimating,
                setup_changes=announced_changes(session) if args.announce else ())
     if args.output:
         Path(args.output).parent.mkdir(parents=True, exist_ok=True)

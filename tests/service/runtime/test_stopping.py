@@ -186,9 +186,17 @@ def test_replay_stops_between_batches_with_the_signal_in_its_status(tmp_path):
     proc = subprocess.Popen(
         [sys.executable, "-m", "wrenchd", "replay", "sim:trocar-contact:600:3", "-o",
          str(out_file)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    time.sleep(8.0)
-    _burst(proc.pid, False, 0.0, 3)
-    out, err = proc.communicate(timeout=HANG_S)
+    try:
+        # signalled once it says it is estimating: simulating the session comes before, and a
+        # fast machine estimates all of it in a few seconds
+        said = proc.stderr.readline()
+        _burst(proc.pid, False, 0.0, 3)
+        out, err = proc.communicate(timeout=HANG_S)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    assert "wrenchd replay: estimating 120000 samples" in said, said
     assert proc.returncode == 128 + signal.SIGINT, (out, err)
     assert "stopped by SIGINT" in err
     assert "Traceback" not in err
