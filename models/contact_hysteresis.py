@@ -20,6 +20,8 @@ lasted ``setup_contact_s`` is judged on its buffered tip force: under ``steady_f
 (``|mean f| / RMS |f|``: a set-up change seen through ``J^-T`` swings with the pose) and no
 larger than ``setup_max_force_n``, it is a set-up change. Contacts within ``setup_gap_s`` of
 each other count as one here. A contact longer than ``max_contact_s`` is a set-up change too.
+After an announced set-up change (:meth:`ContactHysteresis.announce`) a contact held then or
+begun within ``announced_setup_s`` is judged that soon, on what it buffered since.
 The residuals and tip forces are buffered every ``SETUP_STRIDE`` samples in a ring of
 ``SETUP_RING`` rows, so the hot path gains a counter and now and then a row.
 """
@@ -72,6 +74,8 @@ class ContactHysteresis:
         self._stride = 0
         self._check_t = math.inf               # when the contact is judged for a set-up change
         self._ended_t = -math.inf              # when the last contact ended
+        self.announced_t = -math.inf           # when a set-up change was last announced
+        self.announced = False                 # the check due is an announced change's
 
     def enter(self, index: int, t: float, score: float, joint: float) -> bool:
         """Count a free sample's scores toward the enter bounds; True when sample ``index``
@@ -111,6 +115,20 @@ class ContactHysteresis:
         self._ring_n = self._stride = 0
         c = self.config.setup_contact_s
         self._check_t = t + c if c > 0 else math.inf
+        a = self.config.announced_setup_s
+        self.announced = a > 0 and t - self.announced_t <= a and not again
+        if self.announced:
+            self._check_t = min(self._check_t, max(t, self.announced_t) + a)
+
+    def announce(self, t: float) -> None:
+        """A set-up change announced at ``t`` [s]: a contact held now is judged
+        ``announced_setup_s`` from now on what it buffers from now, one begun within that
+        long that soon after its start (nothing without ``announced_setup_s``)."""
+        self.announced_t = t
+        a = self.config.announced_setup_s
+        if self.in_contact and a > 0:
+            self._ring_n = self._stride = 0
+            self._check_t, self.announced = t + a, True
 
     def buffered(self) -> np.ndarray:
         """(n, 9) the buffered residuals (6) and tip forces (3) of the contact."""

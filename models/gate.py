@@ -88,6 +88,17 @@ class GateConfig(BaseModel):
         description="a lasting contact whose tip force RMS is over this is never taken for "
                     "a set-up change [N] (a grasp of several N held for seconds is a contact "
                     "whatever its direction does; a larger change must be announced)")
+    announced_setup_s: float = Field(
+        default=3.0, ge=0.0,
+        description="after an announced set-up change, a contact held then or begun within "
+                    "this long is judged for a set-up change this long after the announcement "
+                    "or its start, on what it buffered since the announcement, its scale "
+                    "re-learnt as announced_widen says [s]; 0: as any contact")
+    announced_widen: float = Field(
+        default=1.5, ge=1.0,
+        description="a scale re-learnt from announced_setup_s of an announced change is its "
+                    "RMS times this, never narrower than the scale before the change (seconds "
+                    "of a new set-up miss the larger residuals of poses still to come)")
     setup_probation_s: float = Field(
         default=2.0, ge=0.0,
         description="nothing is trainable for this long after a set-up change re-learnt [s]")
@@ -283,6 +294,11 @@ class FreeMotionGate:
             raise DataError("only a calibrated (warmed-up or seeded) gate can take over a contact")
         self.contact.take_over(start, t)
 
+    def announce(self, t: float) -> None:
+        """A set-up change announced at time ``t`` [s] (``announced_setup_s``): a contact
+        held now, or begun soon after, is judged for a set-up change soon."""
+        self.contact.announce(t)
+
     def settle(self, t: float) -> None:
         """This gate starts judging at time ``t`` [s] (its warm-up is over, or it takes
         over from another judge): nothing is trainable before ``t + exit_s``."""
@@ -340,7 +356,13 @@ class FreeMotionGate:
             # the pipeline drop its whole delay line at every contact's end)
             return GateDecision(cfg.release_free, score, contact.ended_start)
         setup = outcome == ch.SETUP                   # or too long: re-scale on its level
-        scale.relearn(contact.buffered()[:, :N_JOINTS], r)
+        # an announced change is known to be one: its level is learnt from seconds of it, a
+        # scale narrower than the one before would call its slower swings contact
+        if setup and contact.announced:
+            scale.relearn(contact.buffered()[:, :N_JOINTS], r, cfg.announced_widen,
+                          at_least=scale.std.copy())
+        else:
+            scale.relearn(contact.buffered()[:, :N_JOINTS], r)
         self._probation_until = t + (cfg.setup_probation_s if setup else cfg.max_contact_s)
         return GateDecision(False, score, contact.ended_start, recalibrated=True,
                             setup_change=setup)

@@ -215,11 +215,15 @@ class ResidualScale:
             self._restart(j, float(rms[j]) ** 2, self.config.max_growth * float(rms[j]))
         self._refresh()
 
-    def relearn(self, rows: np.ndarray, r: list[float]) -> None:
+    def relearn(self, rows: np.ndarray, r: list[float], widen: float = 1.0,
+                at_least: np.ndarray | None = None) -> None:
         """Restart on residuals ``rows`` (n, 6) (their mean square within
-        ``warmup_trim_sigma`` robust sigmas), on the residual ``r`` (6,) when n < 6."""
+        ``warmup_trim_sigma`` robust sigmas), on the residual ``r`` (6,) when n < 6; their
+        RMS times ``widen``, and no narrower than RMS ``at_least`` (6,) where given."""
         msq = (warmup_mean_square(rows, self.config.warmup_trim_sigma)
-               if len(rows) >= N_JOINTS else np.asarray(r) ** 2)
+               if len(rows) >= N_JOINTS else np.asarray(r) ** 2) * (widen * widen)
+        if at_least is not None:
+            msq = np.maximum(msq, np.asarray(at_least, dtype=float) ** 2)
         self._acc = [0.0] * N_JOINTS
         self._n_acc = 0
         for j in range(N_JOINTS):

@@ -385,6 +385,8 @@ class ArmPipeline:
         if kind == "instrument":
             self.line.clear()
             self.calibration.restart()          # the next sample starts a calibration
+        else:                                   # the gate judges a contact then soon
+            self.gate.announce(t)
         self._last_setup = {"t": t, **detail}
         return [Event(t, EventKind.SETUP_CHANGE, {"arm": self.arm, **detail,
                                           "carry_over": self.backend is not None

@@ -5,7 +5,9 @@ contact's level, not one sample's."""
 
 import numpy as np
 
+from wrenchd.models.contact_hysteresis import SETUP_STRIDE
 from wrenchd.models.gate import FreeMotionGate, GateConfig
+from wrenchd.models.residual_scale import warmup_mean_square
 
 RATE = 200.0
 N = 200 * 60                                   # a minute of samples
@@ -128,3 +130,57 @@ def test_a_lasting_force_of_several_newtons_is_a_contact_whatever_its_direction_
     assert np.sqrt(np.mean(np.sum(f[CHANGE:] ** 2, axis=1))) > cfg.setup_max_force_n
     assert not any(d.setup_change for d in out)
     assert not any(d.trainable for d in out[CHANGE:])
+
+
+def run_announced(gate, residual, force, at, until_setup=False):
+    """:func:`run`, with a set-up change announced before sample ``at``; to the set-up
+    change found where ``until_setup``."""
+    out = []
+    for i, (r, f) in enumerate(zip(residual, force)):
+        if i == at:
+            gate.announce(i / RATE)
+        out.append(gate.update(i, i / RATE, r, None, f))
+        if until_setup and out[-1].setup_change:
+            break
+    return out
+
+
+def test_an_announced_change_is_re_learnt_within_announced_setup_s_of_its_announcement():
+    cfg = GateConfig(warmup_samples=1000)
+    r, f = session("setup")
+    at = CHANGE + 400                           # announced 2 s into the hold it causes
+    held = FreeMotionGate(cfg)
+    run(held, r[:at], f[:at])
+    before = held.bounds()[1]                   # the scale when the change is announced
+    gate = FreeMotionGate(cfg)
+    out = run_announced(gate, r, f, at, until_setup=True)
+    k = len(out) - 1
+    assert out[k].setup_change
+    assert at + (cfg.announced_setup_s - 0.1) * RATE <= k <= at + (
+        cfg.announced_setup_s + 0.1) * RATE, k
+    # from the seconds since the announcement, widened, never narrower than before it
+    after = gate.bounds()[1]
+    assert (after >= before).all()
+    level = np.sqrt(warmup_mean_square(r[at:k:SETUP_STRIDE], cfg.warmup_trim_sigma))
+    np.testing.assert_allclose(after[:2], cfg.announced_widen * level[:2], rtol=0.05)
+    # unannounced, the same change waits for setup_contact_s
+    late = next(i for i, d in enumerate(run(FreeMotionGate(cfg), r, f)) if d.setup_change)
+    assert late >= CHANGE + cfg.setup_contact_s * RATE
+
+
+def test_a_push_at_the_tip_after_an_announced_change_is_still_a_contact():
+    """The announcement makes the check early, not its verdict: a steady push that starts
+    when a change is announced keeps its direction, and is never trained on."""
+    cfg = GateConfig(warmup_samples=1000)
+    out = run_announced(FreeMotionGate(cfg), *session("push"), CHANGE)
+    assert not any(d.setup_change or d.recalibrated for d in out)
+    assert not any(d.trainable for d in out[CHANGE:])
+
+
+def test_a_contact_long_after_an_announcement_waits_for_setup_contact_s():
+    cfg = GateConfig(warmup_samples=1000)
+    r, f = session("setup")
+    out = run_announced(FreeMotionGate(cfg), r, f, CHANGE - int(
+        (cfg.announced_setup_s + 1.0) * RATE))
+    k = next(i for i, d in enumerate(out) if d.setup_change)
+    assert k >= CHANGE + cfg.setup_contact_s * RATE

@@ -338,6 +338,7 @@ def test_setup_change_makes_an_event_reaches_the_adapter_and_refuses_bad_times(s
     assert "more than 5 s after the arm's latest sample" in events[0].detail["reason"]
     assert p.backend.adapter.body_wall.starts == pytest.approx([trocar.t[30], last])
     assert [e.kind for e in p.setup_change(last + 5.0)] == ["setup_change"]
+    assert p.gate.contact.announced_t == pytest.approx(last + 5.0)   # its check comes soon
     status = p.status()
     assert status["counters"]["setup_changes"] == 3
     assert status["counters"]["error_kinds"] == {"setup": 3}
