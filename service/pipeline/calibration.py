@@ -53,6 +53,48 @@ _WINDOW_TOLERANCE_S = 0.0005
 MAD_TO_RMS, Q25_TO_RMS = 1.4826, 1.0 / 0.31864
 
 
+class SortedWindow:
+    """The guard's window kept sorted per joint as it grows, for its quantiles.
+
+    A quantile by selection over the whole window costs about 0.13 ms per joint at a
+    minute's 12 000 rows (the comparisons of a selection on random data are mispredicted
+    branches), a stall each second that every arm's estimates wait through. Here the rows
+    added since the last call are sorted and merged into the rows sorted before (a stable
+    sort finds the two runs and merges them), then read by index: the same numbers as
+    ``np.quantile(rows, q, axis=0)`` (its default ``linear`` method), exactly.
+
+    >>> w = SortedWindow()
+    >>> rows = np.arange(24.0).reshape(4, 6)[::-1]
+    >>> w.quantiles(rows, (0.25, 0.5))[:, 0].tolist()
+    [4.5, 9.0]
+    """
+
+    def __init__(self) -> None:
+        self._sorted = np.empty((N_JOINTS, 0))
+
+    def quantiles(self, rows: np.ndarray, qs: tuple[float, ...]) -> np.ndarray:
+        """(len(qs), 6) quantiles of ``rows`` (n, 6), whose first rows are the ones seen
+        at the last call (a window that only grows)."""
+        n, m = len(rows), self._sorted.shape[1]
+        if n < m:
+            raise ValueError("the window shrank; start a new SortedWindow")
+        if n > m:
+            merged = np.concatenate([self._sorted, np.sort(rows[m:n].T, axis=1)], axis=1)
+            merged.sort(axis=1, kind="stable")
+            self._sorted = merged
+        out = np.empty((len(qs), N_JOINTS))
+        for k, q in enumerate(qs):
+            # numpy's linear method: index q (n - 1), and its lerp (from b when gamma >= 0.5)
+            virtual = n * q + (1.0 + q * -1.0) - 1.0
+            lo = int(math.floor(virtual))
+            gamma = virtual - lo
+            a = self._sorted[:, lo]
+            b = self._sorted[:, min(lo + 1, n - 1)]
+            diff = b - a
+            out[k] = b - diff * (1.0 - gamma) if gamma >= 0.5 else a + diff * gamma
+        return out
+
+
 class CalibrationGuard:
     """A gate on the step-1 residual during the calibration.
 
@@ -99,6 +141,7 @@ class CalibrationGuard:
         self.mismatch = False
         self._window = np.empty((1024, N_JOINTS))
         self._n = 0
+        self._sorted = SortedWindow()
         self._kept_t = -np.inf
         self._t0: float | None = None
         self._next_t = 0.0
@@ -124,7 +167,7 @@ class CalibrationGuard:
 
     def _follow_level(self, elapsed_s: float) -> None:
         """Set the gate's scale from the window's robust level; judge the fit."""
-        q25, median = np.quantile(self._window[:self._n], (0.25, 0.5), axis=0)
+        q25, median = self._sorted.quantiles(self._window[:self._n], (0.25, 0.5))
         level = MAD_TO_RMS * median
         if elapsed_s >= MISMATCH_AFTER_S:
             self.ratios = Q25_TO_RMS * q25 / self.heldout

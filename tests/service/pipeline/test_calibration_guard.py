@@ -17,6 +17,8 @@ from __future__ import annotations
 
 from functools import lru_cache
 
+import doctest
+
 import numpy as np
 import pytest
 
@@ -25,7 +27,8 @@ from wrenchd.models.estimator.pretrained import load_pretrained
 from wrenchd.models.errors import ConfigError
 from wrenchd.models.gate import FreeMotionGate, GateConfig
 from wrenchd.service.pipeline import ArmPipeline, CalibrationGuardConfig, PipelineConfig
-from wrenchd.service.pipeline.calibration import CalibrationGuard
+from wrenchd.service.pipeline import calibration
+from wrenchd.service.pipeline.calibration import CalibrationGuard, SortedWindow
 from wrenchd.service.replay.loop import replay
 
 DURATION_S, CALIBRATION_S = 24.0, 20.0
@@ -344,3 +347,25 @@ def test_a_contact_the_corrected_residual_has_ended_is_published_free_while_the_
     held = [(t, d) for t, d in decisions if contact[-1] < t < 13.5]
     assert held and all(d.free and d.contact_started >= 0 and not d.trainable for _, d in held)
     assert any(d.trainable for t, d in decisions if t >= 14.5)    # after the guard's end
+
+
+def test_doctest():
+    assert doctest.testmod(calibration).failed == 0
+
+
+@pytest.mark.parametrize("ties", [False, True])
+def test_the_sorted_window_gives_numpys_quantiles_exactly(ties):
+    """Grown in steps of any size, with ties or without: the numbers np.quantile gives (the
+    guard's verdicts were made with those; a replay's outcomes must not move)."""
+    rng = np.random.default_rng(7)
+    for _ in range(40):
+        rows = np.abs(rng.normal(size=(3000, 6))) * rng.uniform(0.01, 10.0, 6)
+        if ties:
+            rows = np.round(rows, 1)
+        window, n = SortedWindow(), 0
+        while n < len(rows):
+            n = min(len(rows), n + int(rng.integers(1, 700)))
+            got = window.quantiles(rows[:n], (0.25, 0.5))
+            assert np.array_equal(got, np.quantile(rows[:n], (0.25, 0.5), axis=0))
+    with pytest.raises(ValueError, match="shrank"):
+        window.quantiles(rows[:10], (0.5,))
