@@ -51,9 +51,11 @@ def wait_for(predicate, timeout: float, what: str) -> None:
 
 
 def write_config(path: Path, endpoint: str, encoding: str, log_dir: Path,
-                 arms: tuple[str, ...] = ("PSM2",), model: str | None = None) -> Path:
+                 arms: tuple[str, ...] = ("PSM2",), model: str | None = None,
+                 express: bool | None = None) -> Path:
     """An external-robot daemon config listening on ``endpoint``; each arm calibrates 2 s and
-    serves ``model`` (default: the settings' default step 1)."""
+    serves ``model`` (default: the settings' default step 1), its wrenches ``express`` or
+    not (default: the settings')."""
     text = f"""
 robot = "external"
 [zenoh]
@@ -66,6 +68,7 @@ directory = "{log_dir}"
 name = "{arm}"
 encoding = "{encoding}"
 {f'model = "{model}"' if model else ""}
+{f'express = {str(express).lower()}' if express is not None else ""}
 [arms.pipeline]
 calibration_s = 2.0
 """

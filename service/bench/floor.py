@@ -76,7 +76,8 @@ def main(argv: list[str] | None = None) -> int:
     stop, wake = threading.Event(), threading.Event()
     enter_realtime(args.realtime)
     session = open_session(ZenohConfig(listen=[args.listen]))
-    pubs = {arm: session.declare_publisher(f"dvrk/{arm}/wrenchd/measured_cf")
+    # express, as the daemon's wrench publishers are by default (its arms' ``express``)
+    pubs = {arm: session.declare_publisher(f"dvrk/{arm}/wrenchd/measured_cf", express=True)
             for arm in args.arms}
     intake, subs = None, []
     if args.intake == "channel":

@@ -75,7 +75,8 @@ class ArmRuntime:
         self._log_problem_reported = False
         self._json = zenoh_encoding("json")
         self.pub_wrench = session.declare_publisher(self.keys["wrench"],
-                                                    encoding=zenoh_encoding(cfg.encoding))
+                                                    encoding=zenoh_encoding(cfg.encoding),
+                                                    express=cfg.express)
         self.pub_events = session.declare_publisher(self.keys["events"], encoding=self._json)
         self.queryable = session.declare_queryable(self.keys["status"], self._on_query)
         self.token = session.liveliness().declare_token(self.keys["alive"])

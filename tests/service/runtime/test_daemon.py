@@ -27,7 +27,9 @@ from tests.support import (communicate_within, expect_line, free_port, read_mcap
 @pytest.mark.parametrize("encoding", ["json", "cdr"])
 def test_daemon_end_to_end(tmp_path, encoding):
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    config = write_config(tmp_path / "wrenchd.toml", endpoint, encoding, tmp_path / "logs")
+    # wrenches express (the default) in JSON, batched by zenoh in CDR: every one arrives
+    config = write_config(tmp_path / "wrenchd.toml", endpoint, encoding, tmp_path / "logs",
+                          express=encoding == "json")
     daemon = subprocess.Popen([sys.executable, "-m", "wrenchd", "serve", "--config",
                                str(config)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                               text=True)
