@@ -155,9 +155,10 @@ class ArmConfig(BaseModel):
     express: bool = Field(
         default=True,
         description="publish each wrench at once (zenoh express), not in a batch that zenoh's "
-                    "transport may hold for up to its batching time limit (1 ms by default): "
-                    "at 3 arms the p99 of a wrench's round trip was 1.6 ms batched, 0.8 ms "
-                    "express; false: batched, a little less CPU per sample")
+                    "transport may hold for up to its batching time limit (1 ms by default), "
+                    "as it does with the arms' wrenches of one pass; false: batched, a little "
+                    "less CPU per sample, and fewer messages for a full transmit queue to drop "
+                    "(docs/results.md, benchmarks)")
     model: str = Field(default="seal",
                        description="step-1 weights: a shipped name (base, seal, paper-base, paper-seal) or a checkpoint")
     corr_checkpoint: str | None = Field(default=None,
