@@ -35,7 +35,8 @@ import numpy as np
 from wrenchd.adapters.messages import encode_joint_state
 from wrenchd.adapters.zenoh_io import ZenohConfig, open_session
 from wrenchd.service.provenance import load_average, steal_ticks, ticks_per_s
-from wrenchd.service.runtime.scheduling import enter_realtime, normal_scheduling, realtime_below
+from wrenchd.service.runtime.scheduling import (enter_realtime, normal_scheduling, realtime_below,
+                                              thread_scheduling)
 
 STEAL_PERIOD_S = 0.1    # how often the hypervisor's steal counter is read while publishing
 
@@ -90,23 +91,21 @@ def _cpu_s(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-#: what :func:`_zenoh_thread_classes` calls each scheduling policy
-_POLICIES = {os.SCHED_OTHER: "normal", os.SCHED_FIFO: "fifo", os.SCHED_RR: "rr",
-             os.SCHED_BATCH: "batch", os.SCHED_IDLE: "idle"}
-
-
 def _zenoh_thread_classes() -> list[str]:
     """The scheduling classes of this process's zenoh receive and send threads (``rx-*``,
     ``tx-*``), which run the subscriber callbacks that time each wrench's arrival: sorted,
-    each once."""
+    each once (``normal``, ``fifo``, ``rr``, ...)."""
     seen = set()
     for task in Path("/proc/self/task").iterdir():
         try:
             name = (task / "comm").read_text().strip()
-            if name.startswith(("rx-", "tx-")):
-                seen.add(_POLICIES.get(os.sched_getscheduler(int(task.name)), "other"))
-        except (OSError, ValueError):
+        except OSError:
             continue                                  # a thread that has just ended
+        if name.startswith(("rx-", "tx-")):
+            policy = thread_scheduling(int(task.name))["class"]
+            if policy is not None:
+                seen.add("normal" if policy == "SCHED_OTHER"
+                         else policy.removeprefix("SCHED_").lower())
     return sorted(seen)
 
 

@@ -30,6 +30,7 @@ from wrenchd.service.runtime.intake import ChannelIntake
 from wrenchd.service.runtime.stopping import StopSignals
 from wrenchd.service.runtime.plumbing import SWITCH_INTERVAL_S, SampleRing
 from wrenchd.service.runtime.scheduling import enter_realtime
+from wrenchd.service.runtime.settings import ArmConfig
 
 _ZERO = np.zeros(6)
 
@@ -76,8 +77,9 @@ def main(argv: list[str] | None = None) -> int:
     stop, wake = threading.Event(), threading.Event()
     enter_realtime(args.realtime)
     session = open_session(ZenohConfig(listen=[args.listen]))
-    # express, as the daemon's wrench publishers are by default (its arms' ``express``)
-    pubs = {arm: session.declare_publisher(f"dvrk/{arm}/wrenchd/measured_cf", express=True)
+    # express or batched as the daemon's wrench publishers are by default
+    express = ArmConfig.model_fields["express"].default
+    pubs = {arm: session.declare_publisher(f"dvrk/{arm}/wrenchd/measured_cf", express=express)
             for arm in args.arms}
     intake, subs = None, []
     if args.intake == "channel":
