@@ -7,10 +7,11 @@ Layers, each written over the one before:
 1. ``config_file``: a zenoh configuration file (``.json5``, ``.json``, ``.yaml``), read by zenoh
    itself exactly as ``zenohd -c`` reads it; without one, zenoh's defaults;
 2. wrenchd's own fields (``mode``, ``listen``, ``connect``, ``multicast_scouting``, the
-   connect timeout and retry periods), those that are set. A field left unset keeps the file's
-   value; where the file says nothing either, wrenchd's default applies (peer mode, multicast
-   scouting off, retries every 250 ms growing to 1 s), so a file that leaves scouting out does
-   not turn multicast on;
+   connect timeout and retry periods, the send queue's depth), those that are set. A field
+   left unset keeps the file's value; where the file says nothing either, wrenchd's default
+   applies (peer mode, multicast scouting off, retries every 250 ms growing to 1 s), so a file
+   that leaves scouting out does not turn multicast on. Without a file the send queue holds 8
+   data batches (zenoh's default: 2);
 3. ``config``: zenoh configuration keys (paths such as ``transport/link/tls/root_ca_certificate``)
    and their values, set last: a key written there always wins. A value replaces the key's
    whole subtree (``transport = {}`` resets every transport setting).
@@ -34,7 +35,7 @@ from wrenchd.models.errors import ConfigError
 #: wrenchd's defaults, for the fields neither the settings nor a config file set
 DEFAULTS: dict[str, Any] = {"mode": "peer", "multicast_scouting": False,
                             "retry_period_init_ms": 250, "retry_period_max_ms": 1000,
-                            "retry_period_increase_factor": 2.0}
+                            "retry_period_increase_factor": 2.0, "tx_queue_batches": 8}
 #: each retry field's name inside zenoh's ``connect/retry``
 _RETRY = {"retry_period_init_ms": "period_init_ms", "retry_period_max_ms": "period_max_ms",
           "retry_period_increase_factor": "period_increase_factor"}
@@ -81,6 +82,13 @@ class ZenohConfig(BaseModel):
     retry_period_increase_factor: float | None = Field(
         default=None, ge=1.0,
         description="each failed try multiplies the wait by this (default 2)")
+    tx_queue_batches: int | None = Field(
+        default=None, ge=1,
+        description="batches zenoh's send queue holds for data messages "
+                    "(transport/link/tx/queue/size/data; default 8, zenoh's 2). Each express "
+                    "message (an arm's wrench, [[arms]] express) takes a batch: with 2, a pass "
+                    "of more arms than that loses the rest when the send thread is held over "
+                    "zenoh's wait_before_drop (1 ms); 8 hold a pass of 6 arms and more")
     config: dict[str, Any] = Field(
         default_factory=dict,
         description="zenoh configuration keys (e.g. transport/link/tls/root_ca_certificate, "
@@ -135,6 +143,8 @@ class ZenohConfig(BaseModel):
             yield "connect", "connect/endpoints", self.connect
         if self.connect_timeout_ms is not None:
             yield "connect_timeout_ms", "connect/timeout_ms", self.connect_timeout_ms
+        if self.tx_queue_batches is not None:
+            yield "tx_queue_batches", "transport/link/tx/queue/size/data", self.tx_queue_batches
         retry = self._retry(_get(conf, "connect/retry"))
         if retry is not None:
             yield "retry_period_*", "connect/retry", retry

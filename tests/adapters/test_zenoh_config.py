@@ -250,3 +250,20 @@ def test_an_unchanged_config_builds_what_it_built_before():
     assert get(conf, "connect/endpoints") == get(fresh, "connect/endpoints") == []
     assert get(conf, "connect/retry") == {"period_init_ms": 250, "period_max_ms": 1000,
                                           "period_increase_factor": 2.0}
+    # the send queue holds a pass of express wrenches (zenoh's default: 2 batches)
+    assert get(conf, "transport/link/tx/queue/size/data") == 8
+    assert get(fresh, "transport/link/tx/queue/size/data") == 2
+
+
+def test_the_send_queue_depth_is_a_field_a_file_or_a_key(tmp_path):
+    file = tmp_path / "deep.json5"
+    file.write_text('{ transport: { link: { tx: { queue: { size: { data: 4 } } } } } }')
+    assert get(ZenohConfig(config_file=str(file)).to_zenoh(),
+               "transport/link/tx/queue/size/data") == 4              # unset: the file's
+    assert get(ZenohConfig(config_file=str(file), tx_queue_batches=8).to_zenoh(),
+               "transport/link/tx/queue/size/data") == 8
+    assert get(ZenohConfig(tx_queue_batches=3, config={
+        "transport/link/tx/queue/size/data": 5}).to_zenoh(),
+        "transport/link/tx/queue/size/data") == 5                     # a key wins
+    with pytest.raises(ConfigError, match="tx_queue_batches"):
+        zenoh_config(tx_queue_batches=0)
