@@ -44,6 +44,7 @@ from wrenchd.service.studies.reproduction_config import (
     PAPER_QUICK,
     QUICK,
     TRAINED,
+    TWO_STEP,
     ReproductionConfig,
     Step1Training,
 )
@@ -75,6 +76,7 @@ from wrenchd.service.studies.reproduction_summary import (
     floor_summary,
     like_for_like,
     summarise,
+    troc_minus,
 )
 from wrenchd.service.studies.reproduction_training import (
     LengthTraining,
@@ -320,5 +322,9 @@ def summarise_run(config: ReproductionConfig, sets: ReproductionSets, scorers: S
         patient_draws_disjoint=sets.draws_disjoint() if config.patient_variation else None,
         patients=sets.patients() if config.patient_variation else None,
         fast_vs_paper=collected.fast_vs_paper, step1=step1,
-        step1_in_domain=in_domain or None, progress=progress)
+        step1_in_domain=in_domain or None, progress=progress,
+        troc_minus_two_step={
+            L: {name: troc_minus(per_seed, collected.contact[name][L])
+                for name in TWO_STEP if L in collected.contact.get(name, {})}
+            for L, per_seed in collected.contact.get("Troc", {}).items()} or None)
     return result.model_copy(update={"criteria": criteria(result)})

@@ -18,6 +18,7 @@ from wrenchd.models.estimator.training import recipe
 
 CONFIGS = ("Troc", "Base", "Seal", "Base+Corr", "Seal+Corr", "Seal+Xfer")
 TRAINED = ("Troc", "Base+Corr", "Seal+Corr", "Seal+Xfer")
+TWO_STEP = ("Base+Corr", "Seal+Corr", "Seal+Xfer")
 AXES = ("Fx", "Fy", "Fz", "tau_x", "tau_y", "tau_z")
 
 

@@ -13,7 +13,7 @@ import platform
 from pathlib import Path
 from typing import Any
 
-from wrenchd.service.studies.reproduction_config import AXES, CONFIGS, TRAINED
+from wrenchd.service.studies.reproduction_config import AXES, CONFIGS, TRAINED, TWO_STEP
 from wrenchd.service.studies.reproduction_results import (
     Cell,
     Interval,
@@ -148,6 +148,36 @@ def markdown(results: ReproductionResult | dict[str, Any], command: str, wall_s:
     out += _fast_vs_paper(results)
     out += [verdict(results), ""]
     return "\n".join(out)
+
+
+def _troc_wins(results: ReproductionResult) -> list[str]:
+    """Does Troc still win? Troc minus each two-step configuration on the same contact
+    trials, per length, with its interval."""
+    pairs = results.troc_minus_two_step
+    if not pairs:
+        return []
+    rows, verdicts = [], []
+    for L in results.lengths:
+        by = pairs.get(L) or pairs.get(float(L)) or {}
+        if not by:
+            continue
+        rows.append([f"{L:g} s"] + [
+            f"{by[n].mean:+.3f} [{by[n].ci95[0]:+.3f}, {by[n].ci95[1]:+.3f}]" if n in by else "-"
+            for n in TWO_STEP])
+        for n, d in by.items():
+            if d.ci95[1] < 0:
+                verdicts.append(f"Troc below {n} at {L:g} s")
+            elif d.ci95[0] > 0:
+                verdicts.append(f"{n} below Troc at {L:g} s")
+    told = "; ".join(verdicts) if verdicts else "none"
+    return ["## Does Troc still win?\n",
+            "Troc's force RMSE on the contact trials minus each two-step configuration's "
+            "[N], trial by trial on the same trials and seed by seed, with the 95 % bootstrap "
+            "interval over seeds and trials (below zero: Troc is better). Pairing by trial "
+            "takes out the spread of the trials' difficulty, which the cells' own intervals "
+            "above keep.\n",
+            _table(["length"] + [f"Troc - {n}" for n in TWO_STEP], rows), "",
+            f"Differences whose interval excludes zero: {told}.", ""]
 
 
 def _fast_vs_paper(results: ReproductionResult) -> list[str]:
@@ -399,8 +429,11 @@ def scored_markdown(results: ReproductionResult | dict[str, Any], command: str,
     lhead = [f"{L:g} s" for L in lengths]
     filt = bool(results.output_filter)
     out = ["# Paper reproduction on the simulator\n",
-           f"Command: `{command}` ({wall_s / 60:.1f} min wall, {results.torch_threads} torch "
-           f"threads, {platform.processor() or platform.machine()}).\n",
+           f"Command: `{command}` ({wall_s / 60:.1f} min wall in the sitting that wrote this "
+           f"report, which goes on from the cells earlier sittings finished: Table 1 holds "
+           f"the training times; "
+           f"{results.torch_threads} torch threads, {platform.processor() or platform.machine()}"
+           f").\n",
            *_partial(results),
            "Wu, Yilmaz, Kazanzides, Tumerdem, *Estimation of Trocar and Tool Interaction Forces "
            "on the da Vinci Research Kit with Two-Step Deep Learning*: the three tables and the "
@@ -439,6 +472,7 @@ def scored_markdown(results: ReproductionResult | dict[str, Any], command: str,
     out += _targets(results, lhead[-1])
     out += _fast_vs_paper(results)
     out += [verdict(results), ""]
+    out += _troc_wins(results)
     return "\n".join(out)
 
 

@@ -193,6 +193,17 @@ class Criteria(Record):
     best_two_step: BestTwoStep
 
 
+class PairedDifference(Record):
+    """Troc's contact-trial force RMSE minus a two-step configuration's, trial by trial and
+    training seed by training seed (the same test trials), with its 95 % bootstrap interval
+    over seeds and trials [N]
+    (:func:`~wrenchd.service.studies.reproduction_summary.troc_minus`): below zero, Troc is
+    the better."""
+
+    mean: float
+    ci95: list[float]
+
+
 class Progress(Record):
     """How far a run that is still going (or was stopped) has come: the (training seed,
     trocar training length) cells trained and scored so far, of ``planned`` in all. A
@@ -225,6 +236,8 @@ class ReproductionResult(Record):
     fast_vs_paper: FastVsPaper | None = optional()
     step1: Step1Record | None = optional()
     step1_in_domain: dict[str, InDomainCell] | None = optional()
+    #: {length [s]: {two-step configuration: Troc minus it}} (absent from older runs)
+    troc_minus_two_step: dict[float, dict[str, PairedDifference]] | None = optional()
     criteria: Criteria | None = optional()
     wall_seconds: float | None = optional()
     command: str | None = optional()

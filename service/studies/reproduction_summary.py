@@ -15,6 +15,7 @@ from wrenchd.service.studies.reproduction_results import (
     Cell,
     Criteria,
     Interval,
+    PairedDifference,
     ReproductionResult,
     Step1Criterion,
     Summary,
@@ -71,6 +72,18 @@ def summarise(per_seed: list[TrialScores], floors: dict[str, TrialScores],
                 force_ratio=float(force.mean() / floor[:, :3].mean()),
                 force_ratio_raw_floor=float(force.mean() / raw[:, :3].mean()),
                 seeds=len(per_seed), trials=int(rmse.shape[1]), scores=scores, **unfiltered)
+
+
+def troc_minus(troc: list[TrialScores], other: list[TrialScores]) -> PairedDifference:
+    """Troc's force RMSE (truth, mean of Fx, Fy, Fz) minus ``other``'s on the same trials,
+    seed k of one against seed k of the other: the mean and interval of that (seeds, trials)
+    table of differences (:func:`mean_interval`). Pairing by trial takes the trials' own
+    spread of difficulty out of the comparison, which the two cells' intervals keep."""
+    seeds = min(len(troc), len(other))
+    a = np.stack([p["truth"]["rmse"] for p in troc[:seeds]])[..., :3].mean(-1)
+    b = np.stack([p["truth"]["rmse"] for p in other[:seeds]])[..., :3].mean(-1)
+    mean, lo, hi = mean_interval(a - b)
+    return PairedDifference(mean=mean, ci95=[lo, hi])
 
 
 def floor_summary(floor: TrialScores) -> Cell:

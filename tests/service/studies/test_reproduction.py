@@ -1,7 +1,6 @@
 """The reproduction's scoring: intervals, per-trial errors, the output filter, floors, and the
 report of the committed results rendered as before."""
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -130,3 +129,20 @@ def test_committed_report_renders_as_it_was():
     for title in ("## Table 2", "## Table 3"):
         block = text[text.index(title):].split("\n\n## ")[0]
         assert block in committed
+
+
+def test_troc_minus_pairs_the_trials_so_a_small_steady_gap_is_told():
+    from wrenchd.service.studies.reproduction_summary import troc_minus
+
+    rng = np.random.default_rng(3)
+    difficulty = rng.uniform(0.5, 2.0, 12)                 # trials differ far more than...
+    scores = lambda gap: [{"truth": {"rmse": np.repeat(                    # noqa: E731
+        (difficulty + gap + rng.normal(0, 0.01, 12))[:, None], 6, axis=1)}} for _ in range(3)]
+    troc, other = scores(0.1), scores(0.0)                 # ...the configurations do
+    d = troc_minus(troc, other)
+    assert d.mean == pytest.approx(0.1, abs=0.02) and 0.0 < d.ci95[0] < d.mean < d.ci95[1]
+    # the unpaired means' intervals overlap: they could not tell the gap
+    _, lo_a, hi_a = mean_interval(np.stack([t["truth"]["rmse"][:, 0] for t in troc]))
+    _, lo_b, hi_b = mean_interval(np.stack([t["truth"]["rmse"][:, 0] for t in other]))
+    assert lo_a < hi_b
+    assert troc_minus(other, troc).mean == pytest.approx(-d.mean)
