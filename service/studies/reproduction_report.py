@@ -158,7 +158,7 @@ def _troc_wins(results: ReproductionResult) -> list[str]:
         return []
     rows, verdicts = [], []
     for L in results.lengths:
-        by = pairs.get(L) or pairs.get(float(L)) or {}
+        by = pairs.get(L, {})
         if not by:
             continue
         rows.append([f"{L:g} s"] + [
