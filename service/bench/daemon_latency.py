@@ -268,8 +268,8 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
                                                      s.payload.to_bytes())))
             for arm in arms]
         # express, as the daemon's wrenches: batched, the arms' joint states of one tick could
-        # wait up to zenoh's batching time limit (1 ms) here, and whether they did changed
-        # between runs (the 6-arm floor's p99 read 0.16 or 1.1 ms with the same code)
+        # wait up to zenoh's batching time limit (1 ms) here, in some runs and not in others,
+        # and the floor and the daemon with them
         pubs = {arm: session.declare_publisher(f"dvrk/{arm}/measured_js", express=True)
                 for arm in arms}
         time.sleep(1.0)                                     # let the routes settle
