@@ -186,7 +186,8 @@ def run_scenario(name: str, duration_s: float, seed: int, model: PhysicsModel | 
                  config: SimulatorConfig | None = None,
                  contact_free_s: float | None = None, patients: PatientRanges | None = None,
                  handle_nm_per_rad: float | None = None,
-                 force_sensor: bool | None = None) -> Session:
+                 force_sensor: bool | None = None,
+                 patient: dict[str, dict[str, Any]] | None = None) -> Session:
     """Simulate scenario ``name`` for ``duration_s`` seconds with ``seed``.
 
     ``contact_free_s`` overrides the scenario's contact-free start [s]; ``patients`` draws
@@ -199,7 +200,9 @@ def run_scenario(name: str, duration_s: float, seed: int, model: PhysicsModel | 
     wall, incision and pressure). ``patients=PatientRanges()`` draws a patient per session
     instead (:mod:`wrenchd.adapters.sim.patients`: ranges and sources); the draw comes from
     its own stream of the seed, so the motion, contacts and noise of a seed are the same with
-    or without variation, and it is recorded in ``metadata["patient"]``.
+    or without variation, and it is recorded in ``metadata["patient"]``. ``patient``: this
+    very patient (a draw as another session's ``metadata["patient"]["draw"]``) instead of
+    one drawn from ``patients``: new motion of a patient already seen.
     """
     try:
         scenario = SCENARIOS[name]
@@ -207,6 +210,8 @@ def run_scenario(name: str, duration_s: float, seed: int, model: PhysicsModel | 
         raise ConfigError(f"unknown scenario {name!r}; choose one of {sorted(SCENARIOS)}") from None
     if not duration_s > 0:
         raise ConfigError(f"duration must be > 0 s, got {duration_s}")
+    if patient is not None and (model is not None or patients is not None):
+        raise ConfigError("a given patient excludes a custom model and patient ranges")
     root = np.random.SeedSequence(seed)
     # children depend on their index only: the fourth (the patient's) leaves the others as
     # they are without variation
@@ -217,8 +222,8 @@ def run_scenario(name: str, duration_s: float, seed: int, model: PhysicsModel | 
     episodes = (contact_episodes(np.random.default_rng(contact_seed), duration_s,
                                  scenario.contact_every_s, start_s=free_s)
                 if scenario.contact_every_s else [])
-    patient = (draw_patient(patients, np.random.default_rng(patient_seed))
-               if patients is not None else None)
+    if patients is not None:
+        patient = draw_patient(patients, np.random.default_rng(patient_seed))
     sensor = scenario.force_sensor if force_sensor is None else force_sensor
     physics = scenario_model(scenario, duration_s, episodes, model, patient, handle_nm_per_rad)
     metadata = {
@@ -232,7 +237,7 @@ def run_scenario(name: str, duration_s: float, seed: int, model: PhysicsModel | 
             "force_sensor": sensor, "custom_model": model is not None,
             "handle_nm_per_rad": handle_nm_per_rad,
         },
-        "patient": {"variation": patients is not None,
+        "patient": {"variation": patients is not None or patient is not None,
                     "ranges": patients.model_dump(mode="json") if patients else None,
                     "draw": (patient or fixed_patient()) if model is None else None},
     }

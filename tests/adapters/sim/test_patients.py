@@ -11,6 +11,7 @@ from wrenchd.adapters.sim.patients import (
     fixed_patient,
 )
 from wrenchd.adapters.sim.scenarios import run_scenario
+from wrenchd.models.errors import ConfigError
 from wrenchd.models.physics.effects.seal import SealParams
 
 
@@ -85,3 +86,18 @@ def test_no_contact_scenario_can_record_the_sensor_channel():
     assert plain.truth.sensor_wrench is None
     np.testing.assert_array_equal(s.joint_states.effort, plain.joint_states.effort)
     assert s.truth.sensor_wrench[:, :3].std() == pytest.approx(0.02, rel=0.1)   # noise only
+
+
+def test_a_given_patient_is_that_patient_on_other_motion():
+    first = run_scenario("trocar", 4.0, seed=11, patients=PatientRanges())
+    draw = first.metadata["patient"]["draw"]
+    same = run_scenario("trocar", 4.0, seed=11, patient=draw)
+    np.testing.assert_array_equal(first.joint_states.effort, same.joint_states.effort)
+    other = run_scenario("trocar", 4.0, seed=12, patient=draw)
+    assert other.metadata["patient"]["draw"] == draw
+    assert other.metadata["patient"]["variation"] is True
+    assert not np.allclose(other.joint_states.position, first.joint_states.position)
+    drawn = run_scenario("trocar", 4.0, seed=12, patients=PatientRanges())
+    assert drawn.metadata["patient"]["draw"] != draw
+    with pytest.raises(ConfigError, match="excludes"):
+        run_scenario("trocar", 4.0, seed=12, patient=draw, patients=PatientRanges())
