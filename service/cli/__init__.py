@@ -9,7 +9,7 @@ Sub-commands:
   inspect    summarise an MCAP session (topics, samples, truncation)
   effects    list the effect vocabulary of model files, with parameters and defaults
   bench      speed of the estimator, the daemon and the replay (``bench inference`` ...)
-  train, reproduce, real-data, real-robot, identify, discrepancy, discrepancy-sweep, discrepancy-real,
+  train, reproduce, patient-gap, real-data, real-robot, identify, discrepancy, discrepancy-sweep, discrepancy-real,
   replay, compare, recovery, announce, excite, fit: see ``wrenchd <command> --help``
 """
 
@@ -26,7 +26,7 @@ from wrenchd.models.errors import WrenchdError
 #: ``func(args) -> int``. A module imports nothing heavy (torch, scipy, river, pinocchio)
 #: until its ``func`` runs.
 VERBS: list[str] = ["simulate", "inspect", "effects", "serve", "config", "robot", "echo",
-                    "bench", "train", "reproduce", "real_data", "real_robot", "identify", "discrepancy",
+                    "bench", "train", "reproduce", "patient_gap", "real_data", "real_robot", "identify", "discrepancy",
                     "discrepancy_sweep", "discrepancy_real", "replay", "compare", "recovery",
                     "announce", "excite", "fit"]
 
