@@ -106,12 +106,22 @@ def run(kind: str, json_path: str | None, duration_s: float, arms: int = 1,
     return 0
 
 
+#: ``bench arm``: samples per block; every other block is paced at 1 kHz
+PACED_BLOCK = 500
+
+
 def bench_arm_thread(duration_s: float = 20.0) -> dict:
     """Per-sample cost of the daemon's work for one arm, without zenoh: decode the JSON joint
     state, run the pipeline (frozen: no adaptation rounds), encode the wrench, hand both log
     records to the log writer (``log``); and, apart (``log_writer``), the log writer
     process's work: format and write them to MCAP. Percentiles per stage [us], one ``trocar``
-    session at 200 Hz."""
+    session at 200 Hz.
+
+    After a first block of ``PACED_BLOCK`` samples (warming up, counted in neither), the
+    samples go in blocks of as many, every other one paced as the daemon sees them at 1 kHz
+    (the thread sleeps until the next millisecond after each sample): ``paced`` against
+    ``tight`` (back to back) says what the idle between samples costs the work (wall time
+    and the thread's own CPU time per sample, the log writer's work included)."""
     import tempfile
 
     import numpy as np
@@ -135,10 +145,23 @@ def bench_arm_thread(duration_s: float = 20.0) -> dict:
     # writer); the log writer process's work (format, write) is timed apart: it runs elsewhere
     stages: dict[str, list[float]] = {"decode": [], "pipeline": [], "encode": [], "log": []}
     writer: list[float] = []
+    # per pacing mode: (wall [us], the thread's CPU [us]) of each sample's whole work
+    modes: dict[str, tuple[list[float], list[float]]] = {"tight": ([], []), "paced": ([], [])}
     queue: deque = deque()
+    next_t = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         log = McapLog("PSM1", LogConfig(directory=tmp))
-        for payload in payloads:
+        for i, payload in enumerate(payloads):
+            block = i // PACED_BLOCK
+            paced = block % 2 == 0 and block > 0
+            if paced:
+                next_t += 1e-3
+                wait = next_t - time.perf_counter()
+                if wait > 0:
+                    time.sleep(wait)
+            else:
+                next_t = time.perf_counter()
+            c0 = time.thread_time()
             t0 = time.perf_counter()
             msg = decode_joint_state("json", payload)
             t1 = time.perf_counter()
@@ -154,7 +177,12 @@ def bench_arm_thread(duration_s: float = 20.0) -> dict:
                 _, topic, stamp_ns, record = queue.popleft()
                 log.write(topic, stamp_ns, format_record(record))
             log.tick()
-            writer.append((time.perf_counter() - t4) * 1e6)
+            t5 = time.perf_counter()
+            writer.append((t5 - t4) * 1e6)
+            if block > 0:
+                wall, cpu = modes["paced" if paced else "tight"]
+                wall.append((t5 - t0) * 1e6)
+                cpu.append((time.thread_time() - c0) * 1e6)
             for name, a, b in (("decode", t0, t1), ("pipeline", t1, t2), ("encode", t2, t3),
                                ("log", t3, t4)):
                 stages[name].append((b - a) * 1e6)
@@ -167,4 +195,11 @@ def bench_arm_thread(duration_s: float = 20.0) -> dict:
                 "log_writer_p50_us": round(float(np.percentile(writer, 50)), 1),
                 "log_writer_p99_us": round(float(np.percentile(writer, 99)), 1),
                 "samples": len(payloads), "threads": 1})
+    for mode, (wall, cpu) in modes.items():
+        if wall:
+            out[mode] = {"wall_p50_us": round(float(np.percentile(wall, 50)), 1),
+                         "wall_p99_us": round(float(np.percentile(wall, 99)), 1),
+                         "thread_cpu_p50_us": round(float(np.percentile(cpu, 50)), 1),
+                         "thread_cpu_mean_us": round(float(np.mean(cpu)), 1),
+                         "samples": len(wall)}
     return out

@@ -1,0 +1,16 @@
+"""`bench arm`: the per-stage cost of one arm's work, back to back and paced at 1 kHz."""
+
+from wrenchd.service.bench.run import PACED_BLOCK, bench_arm_thread
+
+
+def test_stages_and_both_pacings_are_reported():
+    out = bench_arm_thread(duration_s=6.0)                  # 1 200 samples at 200 Hz
+    assert out["samples"] == 1200
+    for stage in ("decode", "pipeline", "encode", "log", "total", "log_writer"):
+        assert 0.0 < out[f"{stage}_p50_us"] <= out[f"{stage}_p99_us"]
+    # after the warm-up block, blocks alternate: tight, then paced (the last one short)
+    assert out["tight"]["samples"] == PACED_BLOCK
+    assert out["paced"]["samples"] == 1200 - 2 * PACED_BLOCK
+    for mode in ("tight", "paced"):
+        assert 0.0 < out[mode]["wall_p50_us"] <= out[mode]["wall_p99_us"]
+        assert out[mode]["thread_cpu_mean_us"] > 0.0 and out[mode]["thread_cpu_p50_us"] > 0.0
