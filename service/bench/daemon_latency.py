@@ -34,6 +34,7 @@ import numpy as np
 
 from wrenchd.adapters.messages import encode_joint_state
 from wrenchd.adapters.zenoh_io import ZenohConfig, open_session
+from wrenchd.service.cli.serve import STAGES_ENV
 from wrenchd.service.provenance import load_average, steal_ticks, ticks_per_s
 from wrenchd.service.runtime.scheduling import (enter_realtime, normal_scheduling, realtime_below,
                                               thread_scheduling)
@@ -189,7 +190,7 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
                   warmup_s: float = 3.0, adaptation: bool = True,
                   log: bool = True, floor: bool = False, pin: bool = False,
                   realtime: int | str = "auto", intake: str = "channel",
-                  split_s: float | None = None) -> dict[str, Any]:
+                  split_s: float | None = None, stages: bool = False) -> dict[str, Any]:
     """Run the benchmark; returns the result dictionary.
 
     Also samples the daemon's resident memory (with its worker) once a second: the soak run
@@ -207,7 +208,9 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
     :func:`~wrenchd.service.bench.ratio.bench_ratio` does). ``intake`` is the daemon's
     ``[ring] intake`` (and the floor's). With ``split_s`` the result also has ``phases``: the
     latency and CPU figures of the samples sent before ``split_s`` (after the warm-up; the
-    daemon's calibration minute when it is ``calibration_s``) and of those after it."""
+    daemon's calibration minute when it is ``calibration_s``) and of those after it. With
+    ``stages`` (the daemon only) the result also has ``stages``: the estimation thread's CPU
+    time per stage over the whole run, warm-up included (:mod:`wrenchd.service.bench.stages`)."""
     from wrenchd.adapters.sim.scenarios import run_scenario
     from wrenchd.adapters.sim.simulator import SimulatorConfig
 
@@ -239,8 +242,12 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
                 "--intake", intake, "--realtime", str(realtime), "--arms", *arms] if floor else
                [sys.executable, "-m", "wrenchd", "serve", "--config",
                 str(workdir / "bench.toml")])
+    env = dict(os.environ)
+    if stages and not floor:
+        env[STAGES_ENV] = str(workdir / "stages.json")
+    stage_times: dict[str, Any] | None = None
     daemon = subprocess.Popen(
-        command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
         preexec_fn=(lambda: os.sched_setaffinity(0, placement[0])) if placement else None)
     sent_ns = {arm: np.zeros(n, dtype=np.int64) for arm in arms}
     received: dict[str, list[tuple[int, bytes]]] = {arm: [] for arm in arms}
@@ -337,6 +344,8 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
                 daemon.communicate(timeout=60)
         except subprocess.TimeoutExpired:
             daemon.kill()
+        if STAGES_ENV in env and (workdir / "stages.json").is_file():
+            stage_times = json.loads((workdir / "stages.json").read_text())
         if daemon.returncode == 0:
             shutil.rmtree(workdir, ignore_errors=True)   # kept when the daemon failed
     index = {s: i for i, s in enumerate(stamps)}
@@ -422,7 +431,8 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
                       ("before", at < split_s, cpu_at, cpu_split, (warmup_s, split_s)),
                       ("after", at >= split_s, cpu_split, cpu, (split_s, total_s)))}
         phases["split_s"] = split_s
-    return {**memory, **usage, **hypervisor, "phases": phases,
+    extra = {} if stage_times is None else {"stages": stage_times}
+    return {**memory, **usage, **hypervisor, "phases": phases, **extra,
             "e2e_p50_us": float(np.percentile(pooled, 50)),
             "e2e_p99_us": float(np.percentile(pooled, 99)),
             # samples without a wrench back (the daemon's ring drops are among them)

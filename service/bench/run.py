@@ -63,7 +63,8 @@ def bench_inference(duration_s: float = 60.0, seed: int = 3, warmup: int = 500) 
 
 def run(kind: str, json_path: str | None, duration_s: float, arms: int = 1,
         rate_hz: float = 1000.0, pin: bool = False, realtime: int | str = "auto",
-        recording: str | None = None, intake: str = "channel", pairs: int = 2) -> int:
+        recording: str | None = None, intake: str = "channel", pairs: int = 2,
+        stages: bool = False) -> int:
     """Run the bench ``kind``, print its result as JSON (with its provenance) and write it to
     ``json_path`` too when given."""
     os.environ.setdefault("OMP_NUM_THREADS", "1")
@@ -77,7 +78,7 @@ def run(kind: str, json_path: str | None, duration_s: float, arms: int = 1,
 
         result = bench_service(n_arms=arms, rate_hz=rate_hz, duration_s=duration_s,
                                floor=kind == "floor", pin=pin, realtime=realtime,
-                               intake=intake)
+                               intake=intake, stages=stages)
     elif kind == "ratio":
         from wrenchd.service.bench.ratio import bench_ratio
 

@@ -3,8 +3,13 @@
 from __future__ import annotations
 
 import argparse
+import os
 
 from wrenchd.service.cli.choices import SCENARIO_CHOICES
+
+#: names the file ``wrenchd serve`` writes its per-stage CPU times to (the stage module's
+#: ``ENV``, kept here so that a plain start imports nothing of the bench)
+STAGES_ENV = "WRENCHD_BENCH_STAGES"
 
 
 def serve(args: argparse.Namespace) -> int:
@@ -13,6 +18,11 @@ def serve(args: argparse.Namespace) -> int:
     from wrenchd.service.runtime.settings import load_settings
 
     one_compute_thread()
+    stages = os.environ.get(STAGES_ENV)
+    if stages:                         # ``bench service --stages``: CPU time per stage
+        from wrenchd.service.bench.stages import install
+
+        install(stages)
 
     overrides: dict = {}
     if args.log_dir:

@@ -22,3 +22,17 @@ def test_the_floor_bench_answers_every_joint_state_without_estimating():
     assert r["daemon"].startswith("bench floor") and r["dropped"] == 0
     assert [a["received"] for a in r["per_arm"].values()] == [800, 800]
     assert math.isfinite(r["e2e_p99_us"]) and r["daemon_cpu_us_per_sample"] > 0
+
+
+def test_stages_count_every_sample_of_every_arm():
+    """bench service --stages: the daemon times its stages; each joint state is decoded, and
+    published and logged, once (two arms stepped together or one by one)."""
+    r = bench_service(n_arms=2, rate_hz=200.0, duration_s=3.0, warmup_s=1.0, stages=True)
+    assert r["dropped"] == 0
+    stages = r["stages"]
+    assert stages["decode"]["calls"] == stages["publish and log"]["calls"] == 2 * 800
+    assert stages["intake"]["calls"] > 0 and stages["housekeeping"]["calls"] > 0
+    for stage in stages.values():
+        assert stage["total_s"] > 0.0 and stage["us_per_call"] > 0.0
+    plain = bench_service(n_arms=1, rate_hz=200.0, duration_s=1.0, warmup_s=0.5)
+    assert "stages" not in plain
