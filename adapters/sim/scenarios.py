@@ -182,6 +182,19 @@ def scenario_model(scenario: Scenario, duration_s: float, episodes: list[list[fl
     return PhysicsModel.from_dict(data)
 
 
+def _streams(seed: int) -> list[np.random.SeedSequence]:
+    """A session seed's random streams: trajectory, contacts, sensor noise, patient."""
+    # children depend on their index only: the fourth (the patient's) leaves the others as
+    # they are without variation
+    return np.random.SeedSequence(seed).spawn(4)
+
+
+def session_patient(seed: int, patients: PatientRanges) -> dict[str, dict[str, Any]]:
+    """The patient a session of ``seed`` draws from ``patients`` (what
+    :func:`run_scenario` records in ``metadata["patient"]["draw"]``), without simulating."""
+    return draw_patient(patients, np.random.default_rng(_streams(seed)[3]))
+
+
 def run_scenario(name: str, duration_s: float, seed: int, model: PhysicsModel | None = None,
                  config: SimulatorConfig | None = None,
                  contact_free_s: float | None = None, patients: PatientRanges | None = None,
@@ -212,10 +225,7 @@ def run_scenario(name: str, duration_s: float, seed: int, model: PhysicsModel | 
         raise ConfigError(f"duration must be > 0 s, got {duration_s}")
     if patient is not None and (model is not None or patients is not None):
         raise ConfigError("a given patient excludes a custom model and patient ranges")
-    root = np.random.SeedSequence(seed)
-    # children depend on their index only: the fourth (the patient's) leaves the others as
-    # they are without variation
-    traj_seed, contact_seed, sensor_seed, patient_seed = root.spawn(4)
+    traj_seed, contact_seed, sensor_seed, patient_seed = _streams(seed)
     trajectory = FourierTrajectory(scenario.workspace, np.random.default_rng(traj_seed),
                                    duration_s, freq_hz=scenario.freq_hz)
     free_s = scenario.contact_free_s if contact_free_s is None else contact_free_s

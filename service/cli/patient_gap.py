@@ -6,7 +6,9 @@
 For each of the paper-scale run's contact trials (unseen patients), fresh free motion of that
 trial's own patient trains a correction net with the run's Corr recipe (``own Corr``), and the
 daemon's gated pipeline replays the same motion and then the trial (``wrenchd online``); the
-run's own figures for the trials (read from ``RUN/cells``) stand beside them.
+run's own figures for the trials (read from ``RUN/cells``) stand beside them; and step 1
+(``paper-base``, ``paper-seal``) on its in-domain trials with unseen patients, with its
+training patients and with the fixed patient.
 :mod:`wrenchd.service.studies.patient_gap` says how. Step 1 is the shipped ``paper-seal``
 (the run's Seal, seed 0). Writes ``OUT/results.json`` and ``OUT/README.md``.
 """
@@ -43,12 +45,14 @@ def patient_gap(args: argparse.Namespace) -> int:
     overrides = {"epochs": args.max_epochs} if args.max_epochs else None
     try:
         config = PatientGapConfig(lengths_s=lengths, trials=args.trials, seed=args.seed,
-                                  online=not args.no_online, corr_overrides=overrides)
+                                  online=not args.no_online, corr_overrides=overrides,
+                                  step1_trials=args.step1_trials)
     except ValueError as exc:
         raise ConfigError(str(exc)) from None
     start = time.perf_counter()
     results = run_patient_gap(PAPER, cells, load_pretrained("paper-seal"), config,
-                              log=lambda m: print(m, file=sys.stderr, flush=True))
+                              log=lambda m: print(m, file=sys.stderr, flush=True),
+                              base=load_pretrained("paper-base"))
     command = "wrenchd patient-gap " + " ".join(sys.argv[2:])
     results["command"] = command
     results["wall_seconds"] = round(time.perf_counter() - start, 1)
@@ -76,6 +80,8 @@ def register(subparsers) -> None:
     p.add_argument("--seed", type=int, default=0, help="training seed")
     p.add_argument("--max-epochs", type=int, default=None,
                    help="the Corr recipe's epoch ceiling (default: the run's)")
+    p.add_argument("--step1-trials", type=int, default=None,
+                   help="the first N in-domain step-1 trials only (0: none; default all)")
     p.add_argument("--no-online", action="store_true",
                    help="skip the replays of the daemon's pipeline")
     p.add_argument("--threads", type=int, default=None, help="torch CPU threads")

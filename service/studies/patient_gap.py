@@ -22,6 +22,11 @@ on other patients, read from the run's cells for one training seed) and the raw 
 Every figure is the report's: the force RMSE (the mean over Fx, Fy, Fz of each axis's RMSE
 against the true tip force, every sample of a trial, through the run's causal output filter),
 with a 95 % percentile-bootstrap interval over trials.
+
+The same question for step 1 in its own domain (:func:`step1_by_patient`): Base and Seal on
+the run's in-domain trials (unseen patients), on the same motion with the patients they were
+trained on, and with the fixed default patient, before the filter, against the raw floor
+(the report's in-domain target).
 """
 
 from __future__ import annotations
@@ -33,7 +38,7 @@ import numpy as np
 import torch
 from pydantic import BaseModel, ConfigDict, Field
 
-from wrenchd.adapters.sim.scenarios import run_scenario
+from wrenchd.adapters.sim.scenarios import run_scenario, session_patient
 from wrenchd.models.estimator.correction_training import fit_corr
 from wrenchd.models.estimator.free_space import FreeSpaceModel
 from wrenchd.models.estimator.wrench import WrenchMap
@@ -43,7 +48,7 @@ from wrenchd.service.studies.reproduction_cells import load_cell
 from wrenchd.service.studies.reproduction_config import ReproductionConfig
 from wrenchd.service.studies.reproduction_scoring import (Scorer, lowpass, mean_interval,
                                                            predicted_torques)
-from wrenchd.service.studies.reproduction_sets import _session
+from wrenchd.service.studies.reproduction_sets import _session, step1_test_sets
 from wrenchd.service.studies.reproduction_training import seeded_recipe
 
 #: the run's configurations read from its cells, in the report's order
@@ -70,6 +75,9 @@ class PatientGapConfig(BaseModel):
                                     description="the run's trocar training length whose cells "
                                                 "are shown beside")
     online: bool = Field(default=True, description="also replay the daemon's gated pipeline")
+    step1_trials: int | None = Field(default=None, ge=0,
+                                     description="the run's first in-domain step-1 trials "
+                                                 "(None: all; 0: none)")
     corr_overrides: dict[str, Any] | None = Field(
         default=None, description="the Corr recipe's fields replaced (None: the run's)")
 
@@ -115,12 +123,51 @@ def _online(run: ReproductionConfig, seal: FreeSpaceModel, free: list[Session],
     return rmse, c_rmse, int(result.model_version[rows][0])
 
 
+def step1_by_patient(run: ReproductionConfig, models: dict[str, FreeSpaceModel],
+                     trials: int | None = None) -> dict[str, dict[str, Any]]:
+    """Each step-1 model of ``models`` (``Base``, ``Seal``) on the run's in-domain trials of
+    unseen patients, on the same trials' motion with the patients of its own training
+    sessions (trial k with the patient of training session k), and with the fixed default
+    patient: per row the per-trial force RMSE before the filter [N], its mean with an
+    interval and its ratio to the raw floor of those trials."""
+    tests = step1_test_sets(run)
+    first = {"Base": run.step1.seed, "Seal": run.step1.seed + 10000}    # as step1_sets
+    out: dict[str, dict[str, Any]] = {}
+    wrench_map = WrenchMap()
+    for name, model in models.items():
+        unseen = tests[name][:trials] if trials is not None else tests[name]
+        seen, fixed = [], []
+        for k, trial in enumerate(unseen):
+            meta = trial.metadata["scenario"]
+            draw = session_patient(first[name] + k, run.patient_ranges)
+            args = (meta["name"], meta["duration_s"], meta["seed"])
+            kw = {"force_sensor": True, "handle_nm_per_rad": meta["handle_nm_per_rad"]}
+            seen.append(run_scenario(*args, patient=draw, **kw))
+            fixed.append(run_scenario(*args, **kw))
+        for label, sessions in (("unseen patients", unseen),
+                                ("its training patients, the same motion", seen),
+                                ("the fixed default patient, the same motion", fixed)):
+            scorer = Scorer(sessions, wrench_map, None)
+            rmse = force_rmse(scorer.score(predicted_torques(model, None, sessions),
+                                           filtered=False))
+            floor = force_rmse(scorer.floors()["raw"])
+            mean, lo, hi = mean_interval(rmse)
+            out[f"{name}: {label}"] = {"rmse": [float(v) for v in rmse],
+                                       "force_rmse": [mean, lo, hi],
+                                       "raw_floor": float(floor.mean()),
+                                       "ratio_raw_floor": mean / float(floor.mean())}
+    return out
+
+
 def run_patient_gap(run: ReproductionConfig, cells: Path, seal: FreeSpaceModel,
                     config: PatientGapConfig | None = None,
-                    log: Callable[[str], None] = print) -> dict[str, Any]:
+                    log: Callable[[str], None] = print,
+                    base: FreeSpaceModel | None = None) -> dict[str, Any]:
     """The study (see the module docstring) on ``run``'s contact trials, its cells under
     ``cells`` and its Seal: per row, the per-trial force RMSE and contact force RMSE [N],
-    their means with intervals, ratios to the raw floor, and what each own Corr trained."""
+    their means with intervals, ratios to the raw floor, and what each own Corr trained;
+    with ``base`` (the run's Base) and ``step1_trials`` not 0, also ``step1``
+    (:func:`step1_by_patient` of Base and Seal)."""
     config = config if config is not None else PatientGapConfig()
     n = min(config.trials or run.contact_trials, run.contact_trials)
     trials = [_session(run, "trocar-contact", run.contact_trial_s, run.test_seed + 1000 + k)
@@ -179,7 +226,10 @@ def run_patient_gap(run: ReproductionConfig, cells: Path, seal: FreeSpaceModel,
         cm, clo, chi = mean_interval(np.array(row["contact_rmse"]))
         summary[name] = {"force_rmse": [mean, lo, hi], "contact_force_rmse": [cm, clo, chi],
                          "ratio_raw_floor": mean / floor_mean}
-    return {"config": config.model_dump(mode="json"), "trials": n,
+    step1 = None
+    if base is not None and config.step1_trials != 0:
+        step1 = step1_by_patient(run, {"Base": base, "Seal": seal}, config.step1_trials)
+    return {"config": config.model_dump(mode="json"), "trials": n, "step1": step1,
             "trial_seeds": [run.test_seed + 1000 + k for k in range(n)],
             "free_seed": FREE_SEED, "corr_recipe": rec.model_dump(mode="json"),
             "general_from": {"cells": str(cells), "seed": config.seed,
@@ -220,6 +270,18 @@ def markdown(results: dict[str, Any], command: str) -> str:
         cm, clo, chi = s["contact_force_rmse"]
         lines.append(f"| {name} | {m:.3f} [{lo:.3f}, {hi:.3f}] | {s['ratio_raw_floor']:.2f} | "
                      f"{cm:.3f} [{clo:.3f}, {chi:.3f}] |")
+    if results.get("step1"):
+        lines += ["", "## Step 1 in its own domain", "",
+                  "Base on `free-space`, Seal on `free-space-seal`: the run's in-domain trials "
+                  "(unseen patients), the same trials' motion with the patients the model was "
+                  "trained on, and with the fixed default patient. Force RMSE before the "
+                  "filter against the raw floor of those trials (the report's in-domain target "
+                  "is 2x).", "",
+                  "| model: patients | force RMSE [N] | / raw floor |", "| --- | --- | --- |"]
+        for name, row in results["step1"].items():
+            m, lo, hi = row["force_rmse"]
+            lines.append(f"| {name} | {m:.3f} [{lo:.3f}, {hi:.3f}] | "
+                         f"{row['ratio_raw_floor']:.2f} |")
     lines += ["", "Per trial, force RMSE [N]:", "",
               "| row | " + " | ".join(str(k) for k in range(results["trials"])) + " |",
               "| --- |" + " --- |" * results["trials"]]

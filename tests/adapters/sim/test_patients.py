@@ -10,7 +10,7 @@ from wrenchd.adapters.sim.patients import (
     draw_patient,
     fixed_patient,
 )
-from wrenchd.adapters.sim.scenarios import run_scenario
+from wrenchd.adapters.sim.scenarios import run_scenario, session_patient
 from wrenchd.models.errors import ConfigError
 from wrenchd.models.physics.effects.seal import SealParams
 
@@ -99,5 +99,7 @@ def test_a_given_patient_is_that_patient_on_other_motion():
     assert not np.allclose(other.joint_states.position, first.joint_states.position)
     drawn = run_scenario("trocar", 4.0, seed=12, patients=PatientRanges())
     assert drawn.metadata["patient"]["draw"] != draw
+    assert session_patient(11, PatientRanges()) == draw          # without simulating
+    assert session_patient(12, PatientRanges()) == drawn.metadata["patient"]["draw"]
     with pytest.raises(ConfigError, match="excludes"):
         run_scenario("trocar", 4.0, seed=12, patient=draw, patients=PatientRanges())

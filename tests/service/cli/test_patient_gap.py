@@ -23,7 +23,7 @@ def _run(*args: str) -> subprocess.CompletedProcess:
 
 def test_one_trial_against_its_own_patient(tmp_path):
     done = _run("--run", str(RUN), "--trials", "1", "--lengths", "30", "--max-epochs", "5",
-                "--threads", "1", "--out", str(tmp_path))
+                "--step1-trials", "2", "--threads", "1", "--out", str(tmp_path))
     assert done.returncode == 0, done.stderr
     r = json.loads((tmp_path / "results.json").read_text())
     rows = r["per_trial"]
@@ -47,8 +47,20 @@ def test_one_trial_against_its_own_patient(tmp_path):
     assert online["rmse"][0] < 0.5 * rows["Seal"]["rmse"][0]
     s = r["summary"]["Seal"]
     assert np.isclose(s["ratio_raw_floor"], rows["Seal"]["rmse"][0] / floor)
+    # step 1 in its domain: Base's free space has no seal nor wall, so whose patient it is
+    # changes nothing; Seal's seal is the patient's
+    step1 = r["step1"]
+    base = [step1[f"Base: {p}"]["rmse"] for p in (
+        "unseen patients", "its training patients, the same motion",
+        "the fixed default patient, the same motion")]
+    assert len(base[0]) == 2 and base[0] == base[1] == base[2]
+    seal = [step1[f"Seal: {p}"]["rmse"] for p in (
+        "unseen patients", "its training patients, the same motion")]
+    assert seal[0] != seal[1]
+    assert all(row["ratio_raw_floor"] > 1.0 for row in step1.values())
     text = (tmp_path / "README.md").read_text()
     assert "| wrenchd online (30 s) |" in text and r["command"].startswith("wrenchd patient-gap")
+    assert "| Seal: unseen patients |" in text
 
 
 def test_a_folder_without_cells_is_refused(tmp_path):
