@@ -48,7 +48,7 @@ from wrenchd.service.studies.reproduction_cells import load_cell
 from wrenchd.service.studies.reproduction_config import ReproductionConfig
 from wrenchd.service.studies.reproduction_scoring import (Scorer, lowpass, mean_interval,
                                                            predicted_torques)
-from wrenchd.service.studies.reproduction_sets import _session, step1_test_sets
+from wrenchd.service.studies.reproduction_sets import contact_trial, step1_test_sets
 from wrenchd.service.studies.reproduction_training import seeded_recipe
 
 #: the run's configurations read from its cells, in the report's order
@@ -170,8 +170,7 @@ def run_patient_gap(run: ReproductionConfig, cells: Path, seal: FreeSpaceModel,
     (:func:`step1_by_patient` of Base and Seal)."""
     config = config if config is not None else PatientGapConfig()
     n = min(config.trials or run.contact_trials, run.contact_trials)
-    trials = [_session(run, "trocar-contact", run.contact_trial_s, run.test_seed + 1000 + k)
-              for k in range(n)]
+    trials = [contact_trial(run, k) for k in range(n)]
     wrench_map = WrenchMap()
     scorer = Scorer(trials, wrench_map, run.output_filter_hz)
     rows: dict[str, dict[str, list[float]]] = {}
@@ -230,7 +229,7 @@ def run_patient_gap(run: ReproductionConfig, cells: Path, seal: FreeSpaceModel,
     if base is not None and config.step1_trials != 0:
         step1 = step1_by_patient(run, {"Base": base, "Seal": seal}, config.step1_trials)
     return {"config": config.model_dump(mode="json"), "trials": n, "step1": step1,
-            "trial_seeds": [run.test_seed + 1000 + k for k in range(n)],
+            "trial_seeds": [t.metadata["scenario"]["seed"] for t in trials],
             "free_seed": FREE_SEED, "corr_recipe": rec.model_dump(mode="json"),
             "general_from": {"cells": str(cells), "seed": config.seed,
                              "length_s": config.general_length_s, "rows": general},

@@ -46,6 +46,12 @@ def validation_set(config: ReproductionConfig) -> list[Session]:
             for k in range(config.validation_sessions)]
 
 
+def contact_trial(config: ReproductionConfig, k: int) -> Session:
+    """Contact trial ``k`` (seed ``test_seed + 1000 + k``: after the no-contact ones)."""
+    return _session(config, "trocar-contact", config.contact_trial_s,
+                    config.test_seed + 1000 + k)
+
+
 def test_sets(config: ReproductionConfig) -> tuple[list[Session], list[Session]]:
     """(no-contact trials, contact trials), seeds disjoint from every training set (the
     contact trials start 1000 seeds after the no-contact ones)."""
@@ -53,8 +59,7 @@ def test_sets(config: ReproductionConfig) -> tuple[list[Session], list[Session]]
     sensor = True if config.sensor_on_no_contact else None
     free = [_session(config, "trocar", config.no_contact_trial_s, s0 + k, sensor)
             for k in range(config.no_contact_trials)]
-    contact = [_session(config, "trocar-contact", config.contact_trial_s, s0 + 1000 + k)
-               for k in range(config.contact_trials)]
+    contact = [contact_trial(config, k) for k in range(config.contact_trials)]
     return free, contact
 
 
