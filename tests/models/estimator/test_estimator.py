@@ -168,3 +168,45 @@ def test_swapping_a_state_dict_serves_like_swapping_the_module(models_f64, free_
         np.testing.assert_array_equal(v.numpy(), state[k])
     with pytest.raises(ConfigError):
         TwoStepEstimator(fs).swap_correction_state(state)
+
+
+def test_streams_stepped_together_one_sample_each_get_what_each_gets_alone(
+        models_f64, free_space_session):
+    """Three streams sharing one step-1 kernel, a sample each per step (the daemon's arms at
+    one rate): the first sample of a stream joining late, a gap on one, a position jump on
+    another and a step one stream takes alone in between restart as they would alone, and
+    every output is the lone stream's."""
+    fs, corr, _ = models_f64
+    js = [_with_gap(free_space_session, n=160, gap_at=60), _spliced(free_space_session),
+          free_space_session.joint_states.slice(300, 460)]
+    alone = [_stream(TwoStepEstimator(fs, corr), s) for s in js]
+    ests = [TwoStepEstimator(fs, corr) for _ in js]
+    for e in ests[1:]:
+        e.share_step1(ests[0])
+    got = [[] for _ in js]
+    for i in range(160):
+        active = [k for k in range(3) if not (k == 2 and i < 30)]     # the third joins at 30
+        if i == 100:                                   # one step of stream 0 on its own
+            got[0].append(ests[0].step_one(js[0].t[i], js[0].position[i], js[0].velocity[i],
+                                           js[0].effort[i]))
+            active = [1, 2]
+        outs = TwoStepEstimator.step_many_joint(
+            [ests[k] for k in active],
+            [(js[k].t[i:i + 1], js[k].position[i:i + 1], js[k].velocity[i:i + 1],
+              js[k].effort[i:i + 1]) for k in active])
+        for k, out in zip(active, outs):
+            got[k].append(out[0])
+    for k, lone in enumerate(alone):
+        first = 30 if k == 2 else 0
+        restarted = np.array([o.restarted for o in got[k]])
+        expected = lone["restarted"][:160].copy()
+        if k == 2:                                     # its first step is a fresh start
+            expected = np.r_[True, _stream(TwoStepEstimator(fs, corr), js[2].slice(30, 160)
+                                           )["restarted"][1:]]
+            lone = _stream(TwoStepEstimator(fs, corr), js[2].slice(30, 160))
+        np.testing.assert_array_equal(restarted, expected)
+        wrench = np.array([o.wrench for o in got[k]])
+        # the joint path hands Corr its step-1 torques in float32: equal to its rounding
+        np.testing.assert_allclose(wrench, lone["wrench"][:160 - first], rtol=1e-5, atol=1e-5)
+    assert restarted.sum() == 1 and np.array([o.restarted for o in got[0]]).sum() == 2
+    assert np.array([o.restarted for o in got[1]]).sum() == 2
