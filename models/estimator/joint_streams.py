@@ -90,6 +90,7 @@ def _step_one_each(estimators: list[TwoStepEstimator],
     each sample handled as it comes): the streams' inputs checked, projected, stepped and
     read out as one (B, ...) batch, without the per-stream bookkeeping of runs."""
     kernel = estimators[0]._recurrent
+    layer = kernel.layers[0]
     try:
         t = np.array([float(b[0][0]) for b in batches])
         q = np.array([b[1] for b in batches], dtype=np.float64).reshape(-1, N_JOINTS)
@@ -104,65 +105,23 @@ def _step_one_each(estimators: list[TwoStepEstimator],
     x = np.concatenate([q, dq], axis=1)                                   # (B, 12)
     if not (np.isfinite(t).all() and np.isfinite(x).all() and np.isfinite(tau).all()):
         raise DataError("joint state contains NaN or Inf")
-    restart = _restarts(estimators, t, q, dq)
-    h, cell = _joint_state(estimators, kernel, restart)
+    g, hid = layer.n_groups, layer.hidden_size
+    h = np.zeros((g, width, hid), dtype=kernel.dtype)
+    cell = np.zeros_like(h)
+    restart = []
+    for i, e in enumerate(estimators):
+        last = e._t_last
+        fresh = (last is None or not 0.0 < t[i] - last <= e.config.max_gap_s
+                 or e._jumped(float(t[i]), q[i], dq[i]))
+        restart.append(fresh)
+        if not fresh and e._state is not None:
+            h[:, i], cell[:, i] = e._state[0][:, 0], e._state[1][:, 0]
     y, (h, cell) = kernel.step(x, (h, cell))
     step1 = y.astype(np.float64)                                        # (B, 6)
-    # each stream's state is its column of the batch's (a view: the next step of the same
-    # streams takes the batch as it is, without gathering the columns again)
-    states = [(h[:, i:i + 1], cell[:, i:i + 1]) for i in range(width)]
-    estimators[0]._joint_last = (tuple(map(id, estimators)), h, cell, states)
     results = []
     for i, e in enumerate(estimators):
-        e._state = states[i]
+        e._state = (np.ascontiguousarray(h[:, i:i + 1]),
+                    np.ascontiguousarray(cell[:, i:i + 1]))
         results.append(e._finish_many(t[i:i + 1], q[i:i + 1], x[i:i + 1], tau[i:i + 1],
-                                      restart[i:i + 1], step1[i:i + 1]))
+                                      np.array(restart[i:i + 1]), step1[i:i + 1]))
     return results
-
-
-def _restarts(estimators: list[TwoStepEstimator], t: np.ndarray, q: np.ndarray,
-              dq: np.ndarray) -> np.ndarray:
-    """(B,) where each stream's state restarts at its one sample: its first, a gap, time not
-    advancing, or a position jump (:meth:`TwoStepEstimator._jumped`, for all streams at once)."""
-    width = len(estimators)
-    if width == 1:                                  # one stream: the scalar test is cheaper
-        e, last = estimators[0], estimators[0]._t_last
-        return np.array([last is None or not 0.0 < t[0] - last <= e.config.max_gap_s
-                         or e._jumped(float(t[0]), q[0], dq[0])])
-    last = np.array([np.nan if e._t_last is None else e._t_last for e in estimators])
-    gap = np.array([e.config.max_gap_s for e in estimators])
-    dt = t - last
-    restart = ~((dt > 0.0) & (dt <= gap))                     # NaN (no last sample) restarts
-    jumps = [e._max_jump for e in estimators]
-    if any(j is not None for j in jumps):
-        q_last = np.array([e._q_last for e in estimators]).reshape(width, N_JOINTS)
-        dq_last = np.array([e._dq_last for e in estimators]).reshape(width, N_JOINTS)
-        moved = np.abs(q - q_last - (dq + dq_last) * (0.5 * dt)[:, None])
-        bound = np.array([np.full(N_JOINTS, np.inf) if j is None else j for j in jumps],
-                         dtype=np.float64)
-        restart |= (moved > bound).any(axis=1) & ~np.isnan(dt)
-    return restart
-
-
-def _joint_state(estimators: list[TwoStepEstimator], kernel, restart: np.ndarray
-                 ) -> tuple[np.ndarray, np.ndarray]:
-    """The streams' states as one (G, B, H) batch, zero where a stream restarts: the last
-    step's batch itself when these streams made it and none has been given another state
-    since, else gathered column by column."""
-    layer = kernel.layers[0]
-    last = getattr(estimators[0], "_joint_last", None)
-    if (last is not None and last[0] == tuple(map(id, estimators))
-            and all(e._state is st for e, st in zip(estimators, last[3]))):
-        h, cell = last[1], last[2]
-        if restart.any():
-            h, cell = h.copy(), cell.copy()
-            h[:, restart] = 0.0
-            cell[:, restart] = 0.0
-        return h, cell
-    g, hid = layer.n_groups, layer.hidden_size
-    h = np.zeros((g, len(estimators), hid), dtype=kernel.dtype)
-    cell = np.zeros_like(h)
-    for i, e in enumerate(estimators):
-        if not restart[i] and e._state is not None:
-            h[:, i], cell[:, i] = e._state[0][:, 0], e._state[1][:, 0]
-    return h, cell
