@@ -34,7 +34,7 @@ import numpy as np
 
 from wrenchd.adapters.messages import encode_joint_state
 from wrenchd.adapters.zenoh_io import ZenohConfig, open_session
-from wrenchd.service.cli.serve import STAGES_ENV
+from wrenchd.service.bench.stages import ENV as STAGES_ENV
 from wrenchd.service.provenance import load_average, steal_ticks, ticks_per_s
 from wrenchd.service.runtime.scheduling import (enter_realtime, normal_scheduling, realtime_below,
                                               thread_scheduling)

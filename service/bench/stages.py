@@ -19,10 +19,8 @@ import threading
 import time
 from pathlib import Path
 
-from wrenchd.service.cli.serve import STAGES_ENV
-
 #: the environment variable naming the file the totals go to
-ENV = STAGES_ENV
+ENV = "WRENCHD_BENCH_STAGES"
 
 #: (module, class, method, stage): what is timed
 STAGES = (

@@ -7,22 +7,17 @@ import os
 
 from wrenchd.service.cli.choices import SCENARIO_CHOICES
 
-#: names the file ``wrenchd serve`` writes its per-stage CPU times to (the stage module's
-#: ``ENV``, kept here so that a plain start imports nothing of the bench)
-STAGES_ENV = "WRENCHD_BENCH_STAGES"
-
 
 def serve(args: argparse.Namespace) -> int:
     from wrenchd.service.runtime.daemon import Daemon
     from wrenchd.service.runtime.scheduling import one_compute_thread
     from wrenchd.service.runtime.settings import load_settings
 
-    one_compute_thread()
-    stages = os.environ.get(STAGES_ENV)
-    if stages:                         # ``bench service --stages``: CPU time per stage
-        from wrenchd.service.bench.stages import install
+    from wrenchd.service.bench import stages
 
-        install(stages)
+    one_compute_thread()
+    if os.environ.get(stages.ENV):      # ``bench service --stages``: CPU time per stage
+        stages.install(os.environ[stages.ENV])
 
     overrides: dict = {}
     if args.log_dir:

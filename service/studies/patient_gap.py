@@ -47,8 +47,9 @@ from wrenchd.models.series import Session
 from wrenchd.service.studies.reproduction_cells import load_cell
 from wrenchd.service.studies.reproduction_config import ReproductionConfig
 from wrenchd.service.studies.reproduction_scoring import (Scorer, lowpass, mean_interval,
-                                                           predicted_torques)
-from wrenchd.service.studies.reproduction_sets import contact_trial, step1_test_sets
+                                                           predicted_torques, trial_errors)
+from wrenchd.service.studies.reproduction_sets import (contact_trial, step1_test_sets,
+                                                        step1_training_seed)
 from wrenchd.service.studies.reproduction_training import seeded_recipe
 
 #: the run's configurations read from its cells, in the report's order
@@ -116,11 +117,9 @@ def _online(run: ReproductionConfig, seal: FreeSpaceModel, free: list[Session],
     if rows.sum() != n:
         raise RuntimeError(f"the replay estimated {rows.sum()} of the trial's {n} samples")
     w = lowpass(result.wrench[rows], trial.joint_states.rate_hz, run.output_filter_hz)
-    err = w - trial.truth.external_wrench
-    contact = trial.truth.in_contact
-    rmse = float(np.sqrt(np.mean(err[:, :3] ** 2, axis=0)).mean())
-    c_rmse = float(np.sqrt(np.mean(err[contact, :3] ** 2, axis=0)).mean())
-    return rmse, c_rmse, int(result.model_version[rows][0])
+    errors = trial_errors(w, trial.truth.external_wrench, trial.truth.in_contact)
+    return (float(errors["rmse"][:3].mean()), float(errors["contact_rmse"][:3].mean()),
+            int(result.model_version[rows][0]))
 
 
 def step1_by_patient(run: ReproductionConfig, models: dict[str, FreeSpaceModel],
@@ -131,7 +130,6 @@ def step1_by_patient(run: ReproductionConfig, models: dict[str, FreeSpaceModel],
     patient: per row the per-trial force RMSE before the filter [N], its mean with an
     interval and its ratio to the raw floor of those trials."""
     tests = step1_test_sets(run)
-    first = {"Base": run.step1.seed, "Seal": run.step1.seed + 10000}    # as step1_sets
     out: dict[str, dict[str, Any]] = {}
     wrench_map = WrenchMap()
     for name, model in models.items():
@@ -139,7 +137,7 @@ def step1_by_patient(run: ReproductionConfig, models: dict[str, FreeSpaceModel],
         seen, fixed = [], []
         for k, trial in enumerate(unseen):
             meta = trial.metadata["scenario"]
-            draw = session_patient(first[name] + k, run.patient_ranges)
+            draw = session_patient(step1_training_seed(run, name, k), run.patient_ranges)
             args = (meta["name"], meta["duration_s"], meta["seed"])
             kw = {"force_sensor": True, "handle_nm_per_rad": meta["handle_nm_per_rad"]}
             seen.append(run_scenario(*args, patient=draw, **kw))

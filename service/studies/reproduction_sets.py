@@ -63,12 +63,21 @@ def test_sets(config: ReproductionConfig) -> tuple[list[Session], list[Session]]
     return free, contact
 
 
-def step1_sets(config: ReproductionConfig, scenario: str, offset: int
-               ) -> tuple[list[Session], list[Session]]:
-    """Free-motion training and held-out sessions of one step-1 model (``offset`` apart)."""
+#: each step-1 model's free-motion scenario and the offset of its training sessions' seeds
+STEP1 = {"Base": ("free-space", 0), "Seal": ("free-space-seal", 10000)}
+
+
+def step1_training_seed(config: ReproductionConfig, name: str, k: int) -> int:
+    """The seed of step-1 model ``name``'s ``k``-th training session."""
+    return config.step1.seed + STEP1[name][1] + k
+
+
+def step1_sets(config: ReproductionConfig, name: str) -> tuple[list[Session], list[Session]]:
+    """Free-motion training and held-out sessions of step-1 model ``name`` (:data:`STEP1`)."""
     st = config.step1
+    scenario = STEP1[name][0]
     n = math.ceil(st.duration_s / st.session_s - 1e-9)
-    first = st.seed + offset
+    first = step1_training_seed(config, name, 0)
     train = [_session(config, scenario, min(st.session_s, st.duration_s - k * st.session_s),
                       first + k) for k in range(n)]
     held = [_session(config, scenario, st.session_s, first + 5000 + k)
@@ -81,8 +90,7 @@ def step1_test_sets(config: ReproductionConfig) -> dict[str, list[Session]]:
     s0 = config.step1_test_seed
     return {name: [_session(config, scenario, config.step1_test_s, s0 + 1000 * i + k, True)
                    for k in range(config.step1_test_trials)]
-            for i, (name, scenario) in enumerate((("Base", "free-space"),
-                                                  ("Seal", "free-space-seal")))}
+            for i, (name, (scenario, _)) in enumerate(STEP1.items())}
 
 
 def _draw(session: Session) -> Any:
@@ -129,9 +137,7 @@ def build_sets(config: ReproductionConfig) -> ReproductionSets:
     """Simulate every session of the run ``config`` describes."""
     free, contact = test_sets(config)
     validation = validation_set(config)
-    step1 = ({"Base": step1_sets(config, "free-space", 0),
-              "Seal": step1_sets(config, "free-space-seal", 10000)}
-             if config.step1 is not None else {})
+    step1 = {name: step1_sets(config, name) for name in STEP1} if config.step1 is not None else {}
     step1_tests = step1_test_sets(config) if config.step1_test_trials else {}
     training = {L: training_set(config, L) for L in config.lengths_s}
     return ReproductionSets(training=training, validation=validation, no_contact=free,
