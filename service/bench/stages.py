@@ -4,9 +4,10 @@
 With :data:`ENV` naming a file, ``wrenchd serve`` wraps the methods of :data:`STAGES` before
 it starts: each call adds its thread CPU time (``time.thread_time_ns``) to its stage, and at
 exit the totals go to that file as JSON (per stage: calls, total seconds, microseconds a
-call). Stages nest (``process`` holds ``step_one``); a wrapper costs about a microsecond a
-call, so the figures are a little high and the daemon's CPU per sample too: use them to
-compare stages, not as the daemon's speed. Without :data:`ENV` nothing is wrapped.
+call). Stages nest (``pipeline (one sample)`` holds ``estimate (one)``); a wrapper costs
+about a microsecond a call, so the figures are a little high and the daemon's CPU per sample
+too: use them to compare stages, not as the daemon's speed. Without :data:`ENV` nothing is
+wrapped.
 """
 
 from __future__ import annotations
