@@ -22,28 +22,64 @@ larger than ``setup_max_force_n``, it is a set-up change. Contacts within ``setu
 each other count as one here. A contact longer than ``max_contact_s`` is a set-up change too.
 After an announced set-up change (:meth:`ContactHysteresis.announce`) a contact held then or
 begun within ``announced_setup_s`` is judged that soon, on what it buffered since.
-The residuals and tip forces are buffered every ``SETUP_STRIDE`` samples in a ring of
-``SETUP_RING`` rows, so the hot path gains a counter and now and then a row.
+
+A contact at the tool tip is a force there: its residual is ``J_v^T f`` (six torques from
+three numbers), and a fit of a tip force to it leaves only the model's noise. A model that
+has gone wrong (a new set-up, poses it never saw) leaves torques no tip force makes. With a
+``tip_misfit`` function (the gate's, on the arm's kinematics) a contact held ``tip_setup_s``
+is judged on its last ``tip_setup_s`` too, and again every ``TIP_EVERY`` of that: the tip
+force swings with the pose (as above) **and** a tip force leaves more than ``tip_misfit`` of
+the scored residual unexplained (median over the rows): a set-up change, its scale re-learnt
+as an announced one's. Either test alone calls real contacts set-up changes (docs/results.md).
+
+The residuals, tip forces, positions and times are buffered every ``SETUP_STRIDE`` samples in
+a ring of ``SETUP_RING`` rows, so the hot path gains a counter and now and then a row.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from wrenchd.models.series import N_JOINTS
-
 if TYPE_CHECKING:
     from wrenchd.models.gate import GateConfig
 
-#: a contact's residual and tip force are buffered every this many samples (the set-up check
+#: a contact's rows are buffered every this many samples (the set-up checks
 #: and the re-learnt scale read them), in a ring of ``SETUP_RING`` rows
 SETUP_STRIDE, SETUP_RING = 10, 1024
 
+#: columns of a buffered row: residual (6), tip force (3), joint positions (6), time
+RES, FORCE, POS, TIME = slice(0, 6), slice(6, 9), slice(9, 15), 15
+ROW = 16
+
+#: after its first, the tip-form check runs every this fraction of ``tip_setup_s`` (on the
+#: last ``tip_setup_s``)
+TIP_EVERY = 0.25
+
 #: :meth:`ContactHysteresis.hold` outcomes
 HELD, ENDED, SETUP, TOO_LONG = 0, 1, 2, 3
+
+
+def tip_force_misfit(jacobian: np.ndarray, residual: np.ndarray, std: np.ndarray) -> np.ndarray:
+    """(n,) the fraction of each residual's squared score a tip force leaves unexplained:
+    ``min_f |(r - J_v^T f) / std|^2 / |r / std|^2`` (0: a tip force's exactly; a random
+    six-vector leaves about a half).
+
+    Args:
+        jacobian: (n, 6, 6) hybrid Jacobians of the tip, rows ``[v; w]``.
+        residual: (n, 6) residual torques [N m; N on insertion].
+        std: (6,) the gate's scale, the weights [N m; N].
+    """
+    a = np.transpose(jacobian[:, :3, :], (0, 2, 1)) / std[None, :, None]     # (n, 6, 3)
+    z = residual / std
+    ata = np.einsum("nji,njk->nik", a, a)
+    atz = np.einsum("nji,nj->ni", a, z)
+    f = np.linalg.solve(ata, atz[..., None])[..., 0]
+    left = z - np.einsum("nij,nj->ni", a, f)
+    return np.sum(left * left, axis=1) / np.maximum(np.sum(z * z, axis=1), 1e-300)
 
 
 class ContactHysteresis:
@@ -57,8 +93,12 @@ class ContactHysteresis:
     (0, 1)
     """
 
-    def __init__(self, config: GateConfig) -> None:
+    def __init__(self, config: GateConfig,
+                 tip_misfit: Callable[[np.ndarray], np.ndarray] | None = None) -> None:
+        """``tip_misfit``: buffered rows (n, ``ROW``) -> (n,) the fraction of each row's
+        scored residual a tip force leaves unexplained (None: no tip-form check)."""
         self.config = config
+        self._tip_misfit = tip_misfit if config.tip_setup_s > 0 else None
         self.contacts = 0
         self.setup_changes = 0
         self.in_contact = False
@@ -68,14 +108,17 @@ class ContactHysteresis:
         self._below_since: float | None = None
         self.contact_start = -1
         self._t0 = 0.0
-        # (SETUP_RING, 9): a contact's residual (6) and tip force (3) every SETUP_STRIDE samples
-        self._ring = np.zeros((SETUP_RING, N_JOINTS + 3))
+        # (SETUP_RING, ROW): a contact's rows (RES, FORCE, POS, TIME) every SETUP_STRIDE samples
+        self._ring = np.zeros((SETUP_RING, ROW))
         self._ring_n = 0                       # rows written since the contact (or check) began
         self._stride = 0
         self._check_t = math.inf               # when the contact is judged for a set-up change
         self._ended_t = -math.inf              # when the last contact ended
         self.announced_t = -math.inf           # when a set-up change was last announced
         self.announced = False                 # the check due is an announced change's
+        self._tip_t = math.inf                 # when the contact's form is judged next
+        self.judged: np.ndarray | None = None  # the rows a set-up verdict was reached on
+        self.tip_form = False                  # that verdict was the tip-form check's
 
     def enter(self, index: int, t: float, score: float, joint: float) -> bool:
         """Count a free sample's scores toward the enter bounds; True when sample ``index``
@@ -105,6 +148,7 @@ class ContactHysteresis:
         self._below_since = None
         self.contacts += 1
         self._watch(t)
+        self._tip_t = t + self.config.tip_setup_s if self._tip_misfit is not None else math.inf
 
     def _watch(self, t: float, again: bool = False) -> None:
         """Buffer afresh from ``t`` [s], to be judged ``setup_contact_s`` later; a contact
@@ -131,14 +175,15 @@ class ContactHysteresis:
             self._check_t, self.announced = t + a, True
 
     def buffered(self) -> np.ndarray:
-        """(n, 9) the buffered residuals (6) and tip forces (3) of the contact."""
+        """(n, ``ROW``) the contact's buffered rows since its check began (the last
+        ``SETUP_RING``, not in order once the ring has wrapped)."""
         return self._ring[:min(self._ring_n, SETUP_RING)]
 
-    def _looks_like_setup(self) -> bool:
-        """The buffered tip force is no larger than ``setup_max_force_n`` (RMS) and swings
+    def _looks_like_setup(self, rows: np.ndarray) -> bool:
+        """The rows' tip force is no larger than ``setup_max_force_n`` (RMS) and swings
         with the pose (``|mean f| / RMS |f|`` under ``steady_force_ratio``); False without a
         tip force or with under 20 rows."""
-        f = self.buffered()[:, N_JOINTS:]
+        f = rows[:, FORCE]
         if len(f) < 20 or not np.isfinite(f).all():
             return False
         c = self.config
@@ -146,18 +191,33 @@ class ContactHysteresis:
         return 0.0 < rms <= c.setup_max_force_n and float(np.linalg.norm(f.mean(axis=0))) < (
             c.steady_force_ratio * rms)
 
+    def _not_a_tip_force(self, t: float) -> np.ndarray | None:
+        """The rows of the last ``tip_setup_s`` when they look like a set-up change (the
+        tip force swings and a tip force leaves over ``tip_misfit`` of the residual
+        unexplained, median over the rows), else None."""
+        rows = self.buffered()
+        rows = rows[rows[:, TIME] > t - self.config.tip_setup_s]
+        if len(rows) < 20 or not np.isfinite(rows[:, POS]).all() or not self._looks_like_setup(
+                rows):
+            return None
+        misfit = self._tip_misfit(rows)
+        return rows if float(np.median(misfit)) > self.config.tip_misfit else None
+
     def hold(self, t: float, score: float, joint: float, r: list[float],
-             force: np.ndarray | None) -> int:
-        """One sample in contact, residual ``r`` (6,) and tip force (3,) [N] buffered: the
-        outcome, :data:`HELD` (see :attr:`published`), :data:`ENDED`, :data:`SETUP` or
-        :data:`TOO_LONG` (the contact is over then; :attr:`ended_start` says where it began)."""
+             force: np.ndarray | None, position: np.ndarray | None = None) -> int:
+        """One sample in contact, residual ``r`` (6,), tip force (3,) [N] and joint positions
+        (6,) buffered: the outcome, :data:`HELD` (see :attr:`published`), :data:`ENDED`,
+        :data:`SETUP` or :data:`TOO_LONG` (the contact is over then; :attr:`ended_start` says
+        where it began, :attr:`judged` which rows a set-up verdict read)."""
         c = self.config
         self._stride += 1
         if self._stride >= SETUP_STRIDE:
             self._stride = 0
             row = self._ring[self._ring_n % SETUP_RING]
-            row[:N_JOINTS] = r
-            row[N_JOINTS:] = force[:3] if force is not None else math.nan
+            row[RES] = r
+            row[FORCE] = force[:3] if force is not None else math.nan
+            row[POS] = position if position is not None else math.nan
+            row[TIME] = t
             self._ring_n += 1
         self._joint_held = self._joint_held + 1 if joint > c.joint_exit_sigma else 0
         below = score < c.exit_sigma and self._joint_held < c.joint_samples
@@ -179,10 +239,18 @@ class ContactHysteresis:
                 return ENDED
         else:
             self._below_since = None
-        setup = t >= self._check_t and self._looks_like_setup()
+        self.judged, self.tip_form = None, False
+        if t >= self._tip_t and not self.announced:
+            self._tip_t = t + c.tip_setup_s * TIP_EVERY
+            self.judged = self._not_a_tip_force(t)
+            self.tip_form = self.judged is not None
+        if self.judged is None and t >= self._check_t and self._looks_like_setup(
+                self.buffered()):
+            self.judged = self.buffered()
+        setup = self.judged is not None
         if setup or t - self._t0 > c.max_contact_s:
             self._end()
-            self._check_t = math.inf
+            self._check_t = self._tip_t = math.inf
             self.setup_changes += setup
             return SETUP if setup else TOO_LONG
         if t >= self._check_t:                         # a steady force: judged again later

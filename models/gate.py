@@ -23,7 +23,7 @@ the bound) are dropped from training. Parameters and their measured effect:
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
@@ -33,6 +33,9 @@ from wrenchd.models.contact_hysteresis import ContactHysteresis
 from wrenchd.models.errors import DataError
 from wrenchd.models.residual_scale import ResidualScale, ReversalSpread, warmup_mean_square
 from wrenchd.models.series import N_JOINTS
+
+if TYPE_CHECKING:
+    from wrenchd.models.physics.kinematics import PSMKinematics
 
 __all__ = ["FreeMotionGate", "GateConfig", "GateDecision", "ReversalSpread",
            "warmup_mean_square"]
@@ -99,6 +102,19 @@ class GateConfig(BaseModel):
         description="a scale re-learnt from announced_setup_s of an announced change is its "
                     "RMS times this, never narrower than the scale before the change (seconds "
                     "of a new set-up miss the larger residuals of poses still to come)")
+    tip_setup_s: float = Field(
+        default=2.0, ge=0.0,
+        description="with the arm's kinematics, a contact held this long is judged on its "
+                    "last this long, and again every quarter of it: a tip force that swings "
+                    "with the pose (steady_force_ratio, setup_max_force_n) and leaves over "
+                    "tip_misfit of the residual unexplained is a set-up change, its scale "
+                    "re-learnt as an announced one's [s]; 0: never")
+    tip_misfit: float = Field(
+        default=0.4, gt=0.0, lt=1.0,
+        description="median fraction of the scored residual (squared scores) a tip force "
+                    "leaves unexplained over which a contact's residual is not a tip "
+                    "force's (a tip contact leaves the model's noise, a random residual "
+                    "about a half)")
     setup_probation_s: float = Field(
         default=2.0, ge=0.0,
         description="nothing is trainable for this long after a set-up change re-learnt [s]")
@@ -213,8 +229,12 @@ class FreeMotionGate:
     (False, True, 400)
     """
 
-    def __init__(self, config: GateConfig | None = None) -> None:
+    def __init__(self, config: GateConfig | None = None,
+                 kinematics: PSMKinematics | None = None) -> None:
+        """``kinematics``: the arm's, for the tip-form check (``tip_setup_s``; without it
+        off)."""
         self.config = config if config is not None else GateConfig()
+        self._kinematics = kinematics
         cap = self.config.joint_cap_sigma
         self._joint_cap_sq = None if cap is None else cap * cap
         self.scale = ResidualScale(self.config)
@@ -231,7 +251,7 @@ class FreeMotionGate:
                 quiet one too narrow.
         """
         self.scale.reset(prior)
-        self.contact = ContactHysteresis(self.config)
+        self.contact = self._hysteresis()
         self._probation_until = -math.inf      # nothing trains before this
 
     def seed(self, std: np.ndarray) -> None:
@@ -244,7 +264,7 @@ class FreeMotionGate:
                 ``min_std``); the scale may grow ``max_growth`` times past it.
         """
         self.scale.seed(std)
-        self.contact = ContactHysteresis(self.config)
+        self.contact = self._hysteresis()
         self._probation_until = -math.inf
 
     def rescale(self, std: np.ndarray) -> None:
@@ -256,6 +276,16 @@ class FreeMotionGate:
             DataError: ``std`` is not six finite values, or the gate is still warming up.
         """
         self.scale.rescale(std)
+
+    def _hysteresis(self) -> ContactHysteresis:
+        if self._kinematics is None:
+            return ContactHysteresis(self.config)
+        kin = self._kinematics
+
+        def misfit(rows: np.ndarray) -> np.ndarray:
+            return ch.tip_force_misfit(kin.jacobian(rows[:, ch.POS], "hybrid"),
+                                       rows[:, ch.RES], self.scale.std)
+        return ContactHysteresis(self.config, misfit)
 
     @property
     def reversal(self) -> ReversalSpread | None:
@@ -310,10 +340,12 @@ class FreeMotionGate:
 
     def update(self, index: int, t: float, residual: np.ndarray,
                velocity: np.ndarray | None = None,
-               force: np.ndarray | None = None) -> GateDecision:
+               force: np.ndarray | None = None,
+               position: np.ndarray | None = None) -> GateDecision:
         """Judge sample ``index`` at time ``t`` [s] with residual torques (6,) [N m; N],
-        for ``reversal_bins_s`` joint velocities (6,) [rad/s; m/s], and for the set-up
-        check (``setup_contact_s``) the tip force estimate (3,) [N]."""
+        for ``reversal_bins_s`` joint velocities (6,) [rad/s; m/s], for the set-up check
+        (``setup_contact_s``) the tip force estimate (3,) [N], and for the tip-form check
+        (``tip_setup_s``, with kinematics) the joint positions (6,) [rad; m]."""
         cfg, scale, contact = self.config, self.scale, self.contact
         r = residual.tolist() if isinstance(residual, np.ndarray) else [float(x) for x in residual]
         zsq, steady = scale.squared_scores(r, t, velocity)
@@ -345,7 +377,7 @@ class FreeMotionGate:
                   and scale.reversal is not None else score)
             return GateDecision(True, score, -1, trainable=(tr < cfg.train_sigma
                                                             and t >= self._probation_until))
-        outcome = contact.hold(t, score, joint, r, force)
+        outcome = contact.hold(t, score, joint, r, force, position)
         if outcome == ch.HELD:
             # with release_free, a released contact is published free (never trainable)
             return GateDecision(cfg.release_free and not contact.published, score,
@@ -358,11 +390,12 @@ class FreeMotionGate:
         setup = outcome == ch.SETUP                   # or too long: re-scale on its level
         # an announced change is known to be one: its level is learnt from seconds of it, a
         # scale narrower than the one before would call its slower swings contact
-        if setup and contact.announced:
-            scale.relearn(contact.buffered()[:, :N_JOINTS], r, cfg.announced_widen,
-                          at_least=scale.std.copy())
+        # so is one judged on seconds of its form
+        rows = contact.judged if setup else contact.buffered()
+        if setup and (contact.announced or contact.tip_form):
+            scale.relearn(rows[:, ch.RES], r, cfg.announced_widen, at_least=scale.std.copy())
         else:
-            scale.relearn(contact.buffered()[:, :N_JOINTS], r)
+            scale.relearn(rows[:, ch.RES], r)
         self._probation_until = t + (cfg.setup_probation_s if setup else cfg.max_contact_s)
         return GateDecision(False, score, contact.ended_start, recalibrated=True,
                             setup_change=setup)

@@ -80,7 +80,7 @@ class ArmPipeline:
         self.policy = c.policy.name
         self.mechanism = mechanism(c.policy.name)
         self.estimator = TwoStepEstimator(free_space, initial_corr(c.adaptation), c.estimator)
-        self.gate = FreeMotionGate(c.gate)
+        self.gate = FreeMotionGate(c.gate, self.estimator.wrench_map.kinematics)
         self.counters = Counters()
         self.calibration = CalibrationPhase(arm, c, free_space, self.gate, self.counters)
         self.drift = ResidualDriftDetector(np.asarray(c.gate.min_std), c.drift)
@@ -242,7 +242,7 @@ class ArmPipeline:
         self.counters.estimated += 1
         warming = not self.gate.calibrated          # before this sample: its last warm-up one
         decision = self.gate.update(index, t, out.external_torque,   # is still a warm-up's
-                                    msg.velocity, out.wrench)
+                                    msg.velocity, out.wrench, msg.position)
         decision, calibrating, guarded = self.calibration.overrule(
             index, t, out, msg.effort, decision, warming, events, self.backend,
             self.model_version, self.line)
@@ -266,7 +266,8 @@ class ArmPipeline:
         if decision.setup_change:
             self._eager(t)
             events.append(Event(t, EventKind.GATE_SETUP_CHANGE, {
-                "arm": self.arm, "setup_contact_s": self.config.gate.setup_contact_s}))
+                "arm": self.arm, "setup_contact_s": self.config.gate.setup_contact_s,
+                "tip_form": self.gate.contact.tip_form}))
         elif decision.recalibrated:
             events.append(Event(t, EventKind.GATE_RECALIBRATED, {
                 "arm": self.arm, "max_contact_s": self.config.gate.max_contact_s}))

@@ -73,8 +73,10 @@ def test_an_announced_change_is_recovered_within_ten_percent(session):
     assert r.status["counters"]["setup_changes"] == 1
     assert [e.t for e in r.events if e.kind == "setup_change"] == [pytest.approx(CHANGE_S)]
     # the tracker saw the wall stiffen (truth: 580 -> 900 N/m; its level is biased by the
-    # free-space net's misfit, the step much less)
-    before, after = r.status["body_wall"]["stiffness_n_per_m"]
+    # free-space net's misfit, the step much less). The gate takes a 2.3 N grasp at 205 s for
+    # a set-up change by its form (gate.tip_setup_s; docs/results.md), which starts a third
+    # segment after the two compared here
+    before, after = r.status["body_wall"]["stiffness_n_per_m"][:2]
     assert 150.0 < after - before < 600.0, (before, after)
     idx = np.searchsorted(session.joint_states.t, r.offered_t)
     assert not session.truth.in_contact[idx].any(), int(session.truth.in_contact[idx].sum())

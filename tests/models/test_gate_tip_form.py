@@ -1,0 +1,101 @@
+"""A contact at the tip is a force there: the gate's tip-form check (``tip_setup_s``, with the
+arm's kinematics) re-learns within seconds a lasting residual no tip force makes and whose tip
+force swings with the pose, and keeps a push at the tip a contact however long it lasts."""
+
+import numpy as np
+import pytest
+
+from wrenchd.models.contact_hysteresis import tip_force_misfit
+from wrenchd.models.estimator.wrench import WrenchMap
+from wrenchd.models.gate import FreeMotionGate, GateConfig
+
+RATE = 200.0
+N = int(40 * RATE)
+CHANGE = int(15 * RATE)                          # the load or the contact from 15 s on
+STD = np.array([0.02, 0.02, 0.1, 0.002, 0.002, 0.002])   # the free residual's spread
+WRENCH = WrenchMap()
+
+
+def motion(n: int = N) -> np.ndarray:
+    """(n, 6) a slow periodic motion of the PSM over its workspace [rad; m]."""
+    t = np.arange(n)[:, None] / RATE
+    period = np.array([6.5, 5.1, 7.3, 4.3, 3.7, 5.9])
+    centre = np.array([0.0, 0.0, 0.12, 0.0, 0.0, 0.0])
+    amp = np.array([0.7, 0.5, 0.05, 1.0, 0.7, 0.7])
+    return centre + amp * np.sin(2 * np.pi * t / period)
+
+
+def session(load: str | None, seed: int = 0):
+    """(positions, residuals, wrenches): free motion's noise, and from CHANGE on a steady
+    2 N push at the tip, a 2 N push at the tip whose direction turns with the yaw, or torques
+    no tip force makes, which follow the pose."""
+    q = motion()
+    r = np.random.default_rng(seed).normal(0.0, 1.0, (N, 6)) * STD
+    if load == "push":
+        jac = WRENCH.kinematics.jacobian(q[CHANGE:], "hybrid")
+        r[CHANGE:] += np.einsum("nji,j->ni", jac[:, :3, :], [0.0, 2.0, 0.0])
+    elif load == "turning push":
+        jac = WRENCH.kinematics.jacobian(q[CHANGE:], "hybrid")
+        yaw = 4.0 * q[CHANGE:, 0]
+        f = 2.0 * np.stack([np.cos(yaw), np.sin(yaw), np.zeros_like(yaw)], 1)
+        r[CHANGE:] += np.einsum("nji,nj->ni", jac[:, :3, :], f)
+    elif load == "setup":                 # about 8 x the spread on every joint, with the pose
+        r[CHANGE:] += 8.0 * STD * np.sin(q[CHANGE:] * [3.0, 4.0, 40.0, 2.0, 3.0, 2.5] + 1.0)
+    return q, r, WRENCH.wrench_batch(q, r)
+
+
+def run(gate: FreeMotionGate, q, r, w, *, positions: bool = True):
+    return [gate.update(i, i / RATE, r[i], None, w[i], q[i] if positions else None)
+            for i in range(N)]
+
+
+def test_a_tip_force_leaves_nothing_a_moment_or_noise_leaves_about_half():
+    q = motion(50)
+    jac = WRENCH.kinematics.jacobian(q, "hybrid")
+    push = np.einsum("nji,j->ni", jac[:, :3, :], [1.0, -2.0, 0.5])
+    twist = np.einsum("nji,j->ni", jac[:, 3:, :], [0.01, 0.0, 0.0])
+    noise = np.random.default_rng(0).normal(0.0, 1.0, (50, 6)) * STD
+    assert tip_force_misfit(jac, push, STD).max() < 1e-9
+    assert np.median(tip_force_misfit(jac, twist, STD)) > 0.3
+    assert 0.3 < np.mean(tip_force_misfit(jac, noise, STD)) < 0.7
+
+
+def test_a_residual_no_tip_force_makes_is_re_learnt_within_seconds():
+    cfg = GateConfig(warmup_samples=1000)
+    gate = FreeMotionGate(cfg, WRENCH.kinematics)
+    out = run(gate, *session("setup"))
+    k = next(i for i, d in enumerate(out) if d.setup_change)
+    assert CHANGE < k <= CHANGE + (2 * cfg.tip_setup_s + 0.5) * RATE
+    assert k < CHANGE + cfg.setup_contact_s * RATE
+    # re-learnt as an announced change is: widened, so the rest of it is free motion
+    assert np.mean([d.free for d in out[k + 200:]]) > 0.95
+    assert gate.setup_changes == 1
+
+
+def test_without_positions_or_kinematics_the_same_residual_waits_for_setup_contact_s():
+    cfg = GateConfig(warmup_samples=1000)
+    for gate, positions in ((FreeMotionGate(cfg, WRENCH.kinematics), False),
+                            (FreeMotionGate(cfg), True)):
+        out = run(gate, *session("setup"), positions=positions)
+        k = next(i for i, d in enumerate(out) if d.setup_change or d.recalibrated)
+        assert k >= CHANGE + cfg.setup_contact_s * RATE
+
+
+@pytest.mark.parametrize("tip_setup_s", [2.0, 0.5])
+def test_a_steady_push_at_the_tip_stays_a_contact(tip_setup_s):
+    cfg = GateConfig(warmup_samples=1000, tip_setup_s=tip_setup_s)
+    out = run(FreeMotionGate(cfg, WRENCH.kinematics), *session("push"))
+    assert not any(d.setup_change or d.recalibrated for d in out)
+    assert not any(d.trainable for d in out[CHANGE:])
+    assert np.mean([not d.free for d in out[CHANGE + 100:]]) > 0.95
+
+
+def test_a_push_at_the_tip_that_turns_with_the_pose_is_no_set_up_change_before_setup_contact_s():
+    """Its tip force swings as a set-up change's does; its form is a tip force's."""
+    cfg = GateConfig(warmup_samples=1000)
+    out = run(FreeMotionGate(cfg, WRENCH.kinematics), *session("turning push"))
+    end = CHANGE + int(cfg.setup_contact_s * RATE)
+    assert not any(d.setup_change or d.recalibrated for d in out[:end])
+    assert np.mean([not d.free for d in out[CHANGE + 100:end]]) > 0.95
+    # the 10 s check on the swing alone calls it one (a push that turns round for 10 s)
+    assert any(d.setup_change for d in out[end:])
