@@ -117,7 +117,7 @@ class ContactHysteresis:
         self.announced_t = -math.inf           # when a set-up change was last announced
         self.announced = False                 # the check due is an announced change's
         self._tip_t = math.inf                 # when the contact's form is judged next
-        self.judged: np.ndarray | None = None  # the rows a set-up verdict was reached on
+        self.judged: np.ndarray | None = None  # the rows the last set-up verdict read
         self.tip_form = False                  # that verdict was the tip-form check's
 
     def enter(self, index: int, t: float, score: float, joint: float) -> bool:
@@ -239,19 +239,20 @@ class ContactHysteresis:
                 return ENDED
         else:
             self._below_since = None
-        self.judged, self.tip_form = None, False
+        judged = None
         if t >= self._tip_t and not self.announced:
             self._tip_t = t + c.tip_setup_s * TIP_EVERY
-            self.judged = self._not_a_tip_force(t)
-            self.tip_form = self.judged is not None
-        if self.judged is None and t >= self._check_t and self._looks_like_setup(
-                self.buffered()):
-            self.judged = self.buffered()
-        setup = self.judged is not None
+            judged = self._not_a_tip_force(t)
+        tip_form = judged is not None
+        if judged is None and t >= self._check_t:
+            rows = self.buffered()
+            judged = rows if self._looks_like_setup(rows) else None
+        setup = judged is not None
         if setup or t - self._t0 > c.max_contact_s:
             self._end()
             self._check_t = self._tip_t = math.inf
             self.setup_changes += setup
+            self.judged, self.tip_form = judged, tip_form
             return SETUP if setup else TOO_LONG
         if t >= self._check_t:                         # a steady force: judged again later
             self._watch(t, again=True)
