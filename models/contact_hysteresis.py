@@ -27,7 +27,7 @@ A contact at the tool tip is a force there: its residual is ``J_v^T f`` (six tor
 three numbers), and a fit of a tip force to it leaves only the model's noise. A model that
 has gone wrong (a new set-up, poses it never saw) leaves torques no tip force makes. With a
 ``tip_misfit`` function (the gate's, on the arm's kinematics) a contact held ``tip_setup_s``
-is judged on its last ``tip_setup_s`` too, and again every ``TIP_EVERY`` of that: the tip
+is judged on its last ``tip_setup_s`` too (its rows over the exit bounds), and again every ``TIP_EVERY`` of that: the tip
 force swings with the pose (as above) **and** a tip force leaves more than ``tip_misfit`` of
 the scored residual unexplained (median over the rows): a set-up change, its scale re-learnt
 as an announced one's. Either test alone calls real contacts set-up changes (docs/results.md).
@@ -51,9 +51,10 @@ if TYPE_CHECKING:
 #: and the re-learnt scale read them), in a ring of ``SETUP_RING`` rows
 SETUP_STRIDE, SETUP_RING = 10, 1024
 
-#: columns of a buffered row: residual (6), tip force (3), joint positions (6), time
-RES, FORCE, POS, TIME = slice(0, 6), slice(6, 9), slice(9, 15), 15
-ROW = 16
+#: columns of a buffered row: residual (6), tip force (3), joint positions (6), time, and
+#: 1 where the sample was under both exit bounds (the force gone or passing through zero)
+RES, FORCE, POS, TIME, BELOW = slice(0, 6), slice(6, 9), slice(9, 15), 15, 16
+ROW = 17
 
 #: after its first, the tip-form check runs every this fraction of ``tip_setup_s`` (on the
 #: last ``tip_setup_s``)
@@ -63,10 +64,12 @@ TIP_EVERY = 0.25
 HELD, ENDED, SETUP, TOO_LONG = 0, 1, 2, 3
 
 
-def tip_force_misfit(jacobian: np.ndarray, residual: np.ndarray, std: np.ndarray) -> np.ndarray:
-    """(n,) the fraction of each residual's squared score a tip force leaves unexplained:
-    ``min_f |(r - J_v^T f) / std|^2 / |r / std|^2`` (0: a tip force's exactly; a random
-    six-vector leaves about a half).
+def tip_force_fit(jacobian: np.ndarray, residual: np.ndarray, std: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """The tip force that best explains each residual in the scale's units, and what it
+    leaves: ``(misfit (n,), force (n, 3) [N])``. The misfit is the fraction of each
+    residual's squared score the force leaves unexplained, ``min_f |(r - J_v^T f) / std|^2 /
+    |r / std|^2`` (0: a tip force's exactly; a random six-vector leaves about a half).
 
     Args:
         jacobian: (n, 6, 6) hybrid Jacobians of the tip, rows ``[v; w]``.
@@ -79,7 +82,13 @@ def tip_force_misfit(jacobian: np.ndarray, residual: np.ndarray, std: np.ndarray
     atz = np.einsum("nji,nj->ni", a, z)
     f = np.linalg.solve(ata, atz[..., None])[..., 0]
     left = z - np.einsum("nij,nj->ni", a, f)
-    return np.sum(left * left, axis=1) / np.maximum(np.sum(z * z, axis=1), 1e-300)
+    misfit = np.sum(left * left, axis=1) / np.maximum(np.sum(z * z, axis=1), 1e-300)
+    return misfit, f
+
+
+def tip_force_misfit(jacobian: np.ndarray, residual: np.ndarray, std: np.ndarray) -> np.ndarray:
+    """(n,) the misfit of :func:`tip_force_fit`."""
+    return tip_force_fit(jacobian, residual, std)[0]
 
 
 class ContactHysteresis:
@@ -108,7 +117,7 @@ class ContactHysteresis:
         self._below_since: float | None = None
         self.contact_start = -1
         self._t0 = 0.0
-        # (SETUP_RING, ROW): a contact's rows (RES, FORCE, POS, TIME) every SETUP_STRIDE samples
+        # (SETUP_RING, ROW): a contact's rows (RES, FORCE, POS, TIME, BELOW) every SETUP_STRIDE
         self._ring = np.zeros((SETUP_RING, ROW))
         self._ring_n = 0                       # rows written since the contact (or check) began
         self._stride = 0
@@ -192,11 +201,12 @@ class ContactHysteresis:
             c.steady_force_ratio * rms)
 
     def _not_a_tip_force(self, t: float) -> np.ndarray | None:
-        """The rows of the last ``tip_setup_s`` when they look like a set-up change (the
-        tip force swings and a tip force leaves over ``tip_misfit`` of the residual
-        unexplained, median over the rows), else None."""
+        """The rows of the last ``tip_setup_s`` over the exit bounds when they look like a
+        set-up change (the tip force swings and a tip force leaves over ``tip_misfit`` of the
+        residual unexplained, median over the rows), else None. Rows under the exit bounds
+        are left out: a contact's tail, its force gone, is free motion's error."""
         rows = self.buffered()
-        rows = rows[rows[:, TIME] > t - self.config.tip_setup_s]
+        rows = rows[(rows[:, TIME] > t - self.config.tip_setup_s) & (rows[:, BELOW] == 0)]
         if len(rows) < 20 or not np.isfinite(rows[:, POS]).all() or not self._looks_like_setup(
                 rows):
             return None
@@ -210,6 +220,8 @@ class ContactHysteresis:
         :data:`SETUP` or :data:`TOO_LONG` (the contact is over then; :attr:`ended_start` says
         where it began, :attr:`judged` which rows a set-up verdict read)."""
         c = self.config
+        self._joint_held = self._joint_held + 1 if joint > c.joint_exit_sigma else 0
+        below = score < c.exit_sigma and self._joint_held < c.joint_samples
         self._stride += 1
         if self._stride >= SETUP_STRIDE:
             self._stride = 0
@@ -218,9 +230,8 @@ class ContactHysteresis:
             row[FORCE] = force[:3] if force is not None else math.nan
             row[POS] = position if position is not None else math.nan
             row[TIME] = t
+            row[BELOW] = below
             self._ring_n += 1
-        self._joint_held = self._joint_held + 1 if joint > c.joint_exit_sigma else 0
-        below = score < c.exit_sigma and self._joint_held < c.joint_samples
         if c.release_free:
             if self.published:
                 if below:                              # released: published free from here

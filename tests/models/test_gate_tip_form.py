@@ -99,3 +99,16 @@ def test_a_push_at_the_tip_that_turns_with_the_pose_is_no_set_up_change_before_s
     assert np.mean([not d.free for d in out[CHANGE + 100:end]]) > 0.95
     # the 10 s check on the swing alone calls it one (a push that turns round for 10 s)
     assert any(d.setup_change for d in out[end:])
+
+
+def test_a_contact_s_tail_is_not_judged_on_its_form():
+    """A push that ends while the gate still holds the contact (a long ``exit_s``): the
+    samples after it are free motion's error, which no tip force explains and whose fitted
+    force swings. Only the samples over the exit bounds are judged on their form."""
+    cfg = GateConfig(warmup_samples=1000, exit_s=2.5)
+    q, r, _ = session("push")
+    end = CHANGE + int(1.0 * RATE)                      # a 1 s push, then free motion
+    r[end:] = np.random.default_rng(5).normal(0.0, 1.0, (N - end, 6)) * STD
+    out = run(FreeMotionGate(cfg, WRENCH.kinematics), q, r, WRENCH.wrench_batch(q, r))
+    assert not out[CHANGE + 100].free
+    assert not any(d.setup_change for d in out[:CHANGE + int(cfg.setup_contact_s * RATE)])
