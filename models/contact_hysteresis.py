@@ -27,10 +27,11 @@ A contact at the tool tip is a force there: its residual is ``J_v^T f`` (six tor
 three numbers), and a fit of a tip force to it leaves only the model's noise. A model that
 has gone wrong (a new set-up, poses it never saw) leaves torques no tip force makes. With a
 ``tip_misfit`` function (the gate's, on the arm's kinematics) a contact held ``tip_setup_s``
-is judged on its last ``tip_setup_s`` too (its rows over the exit bounds), and again every ``TIP_EVERY`` of that: the tip
-force swings with the pose (as above) **and** a tip force leaves more than ``tip_misfit`` of
-the scored residual unexplained (median over the rows): a set-up change, its scale re-learnt
-as an announced one's. Either test alone calls real contacts set-up changes (docs/results.md).
+is judged on its last ``tip_setup_s`` too (its rows over the exit bounds: a tail, the force
+gone, is free motion's error), and again every ``TIP_EVERY`` of that: the tip force swings
+with the pose (as above) **and** a tip force leaves more than ``tip_misfit`` of the scored
+residual unexplained (median over the rows): a set-up change, its scale re-learnt as an
+announced one's. Either test alone calls real contacts set-up changes (docs/results.md).
 
 The residuals, tip forces, positions and times are buffered every ``SETUP_STRIDE`` samples in
 a ring of ``SETUP_RING`` rows, so the hot path gains a counter and now and then a row.
