@@ -115,6 +115,25 @@ class GateConfig(BaseModel):
                     "leaves unexplained over which a contact's residual is not a tip "
                     "force's (a tip contact leaves the model's noise, a random residual "
                     "about a half)")
+    weak_contact_s: float = Field(
+        default=0.3, ge=0.0,
+        description="with the arm's kinematics, free samples whose residual a tip force of "
+                    "over weak_contact_force_n explains to within weak_contact_misfit (medians "
+                    "over this long) are held back from training, and the delay line's from "
+                    "onset_margin_s before them dropped: a contact too weak for the gate's "
+                    "bounds; what is published is unchanged [s]; 0: never")
+    weak_contact_misfit: float = Field(
+        default=0.1, gt=0.0, lt=1.0,
+        description="median fraction of the scored residual a tip force leaves unexplained "
+                    "under which free samples look like a weak contact (weak_contact_s)")
+    weak_contact_force_n: float = Field(
+        default=0.8, ge=0.0,
+        description="median tip force over which free samples may be a weak contact "
+                    "(weak_contact_s) [N]")
+    weak_contact_max_s: float = Field(
+        default=5.0, gt=0.0,
+        description="free samples that look like a weak contact for longer than this are a "
+                    "model error a tip force explains, and train again [s]")
     setup_probation_s: float = Field(
         default=2.0, ge=0.0,
         description="nothing is trainable for this long after a set-up change re-learnt [s]")

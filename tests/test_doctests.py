@@ -16,6 +16,7 @@ MODULES = (
     "wrenchd.models.gate",
     "wrenchd.models.residual_scale",
     "wrenchd.models.contact_hysteresis",
+    "wrenchd.models.weak_contact",
     "wrenchd.service.pipeline.mechanisms",
     "wrenchd.models.estimator.estimator",
     "wrenchd.service.pipeline.arm",

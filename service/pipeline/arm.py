@@ -17,7 +17,9 @@ Per sample, in :meth:`ArmPipeline._after`'s order:
    adaptation eager (``drift``).
 5. **offer**: the policy's :class:`~wrenchd.service.pipeline.mechanisms.Mechanism`: gated, a
    free sample waits ``release_delay_s`` in the delay line and is dropped if a contact began
-   meanwhile; ungated, every sample at once; frozen, none.
+   meanwhile, or if its residual has a weak contact's form
+   (:class:`~wrenchd.models.weak_contact.WeakContactWatch`); ungated, every sample at once;
+   frozen, none.
 6. **swap**: accepted rounds replace the ``Corr`` between two samples.
 """
 
@@ -44,6 +46,7 @@ from wrenchd.service.pipeline.mechanisms import mechanism
 from wrenchd.service.pipeline.records import Counters, Estimate, Event, EventKind
 from wrenchd.service.pipeline.validation import SampleValidator
 from wrenchd.models.adaptation import RoundResult
+from wrenchd.models.weak_contact import WeakContactWatch
 
 
 class ArmPipeline:
@@ -80,7 +83,10 @@ class ArmPipeline:
         self.policy = c.policy.name
         self.mechanism = mechanism(c.policy.name)
         self.estimator = TwoStepEstimator(free_space, initial_corr(c.adaptation), c.estimator)
-        self.gate = FreeMotionGate(c.gate, self.estimator.wrench_map.kinematics)
+        kinematics = self.estimator.wrench_map.kinematics
+        self.gate = FreeMotionGate(c.gate, kinematics)
+        self.weak = (WeakContactWatch(c.gate, kinematics)
+                     if c.gate.weak_contact_s > 0 and kinematics is not None else None)
         self.counters = Counters()
         self.calibration = CalibrationPhase(arm, c, free_space, self.gate, self.counters)
         self.drift = ResidualDriftDetector(np.asarray(c.gate.min_std), c.drift)
@@ -229,6 +235,8 @@ class ArmPipeline:
         if gap_s is not None:
             self.counters.gaps += 1
             self.line.clear()                          # the delay line spans no gap
+            if self.weak is not None:
+                self.weak.clear()
             events.append(Event(t, EventKind.GAP, {"arm": self.arm, "gap_s": gap_s}))
         # a non-finite value makes the sum non-finite; a finite sum can only overflow (then
         # the exact check decides): six Python floats add faster than NumPy checks six values
@@ -253,7 +261,7 @@ class ArmPipeline:
         free = decision.free and decision.contact_started < 0
         if free and not guarded:
             self._drift(t, out.external_torque, events)
-        self._offer(t, out, msg.effort, free, events, calibrating, decision.trainable,
+        self._offer(t, out, msg, free, events, calibrating, decision.trainable,
                     decision.contact_started)
         est = Estimate(index, msg.stamp_ns, t, msg.position, msg.velocity, msg.effort,
                        out.wrench, out.predicted_torque, out.external_torque, decision.free,
@@ -308,7 +316,7 @@ class ArmPipeline:
             events.append(Event(t, EventKind.CONTACT_END, {"arm": self.arm}))
         self._was_contact = now
 
-    def _offer(self, t: float, out, effort: np.ndarray, free: bool, events: list[Event],
+    def _offer(self, t: float, out, msg: JointSample, free: bool, events: list[Event],
                calibrating: bool = False, trainable: bool = True,
                contact_started: int = -1) -> None:
         if self.backend is None or out.window is None:
@@ -317,14 +325,24 @@ class ArmPipeline:
             return
         if self.mechanism.offers_everything or (calibrating and not self.calibration.refuses):
             now = Released(np.array([t]), out.window[None], out.step1_torque[None],
-                           effort[None])
+                           msg.effort[None])
             self.counters.offered += offer_rows(self.backend, now, self.on_offer)
             return
+        weak = self.weak
         if not free:
+            if weak is not None:
+                weak.clear()
             self.counters.discarded_onsets += self.line.drop_onset(contact_started)
             return
+        if weak is not None and not calibrating and t >= self._adapt_until and weak.update(
+                t, msg.position, out.external_torque, self.gate.scale.std):
+            trainable = False           # a weak contact's form: held back
+            self.counters.held_back += 1
+            if weak.onset is not None:
+                self.counters.held_back += self.line.drop_since(
+                    weak.onset - self.config.policy.onset_margin_s)
         if trainable:                   # a free but borderline sample is skipped, not trusted
-            self.line.push(t, out.window, out.step1_torque, effort)
+            self.line.push(t, out.window, out.step1_torque, msg.effort)
         self.counters.offered += offer_rows(self.backend, self.line.release(t), self.on_offer)
 
     def _adapt(self, t: float) -> list[Event]:
@@ -427,7 +445,8 @@ class ArmPipeline:
                          "error_kinds": dict(c.error_kinds), "gaps": c.gaps,
                          "jumps": c.jumps,
                          "dropped": c.dropped, "offered": c.offered,
-                         "discarded_onsets": c.discarded_onsets, "drifts": c.drifts,
+                         "discarded_onsets": c.discarded_onsets, "held_back": c.held_back,
+                         "drifts": c.drifts,
                          "setup_changes": c.setup_changes,
                          "rounds": c.rounds, "swaps": c.swaps,
                          "calibration_samples": c.calibration_samples,

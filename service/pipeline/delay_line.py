@@ -116,11 +116,14 @@ class DelayLine:
             return 0
         first = self.estimated - len(self.times)            # index of the oldest time kept
         if contact_started < first:
-            keep = 0
-        else:
-            cutoff = self.times[contact_started - first] - self.policy.onset_margin_s
-            keep = int(np.searchsorted(self._t[head:tail], cutoff, side="left"))
-        self._tail = head + keep
+            self._tail = head
+            return tail - head
+        return self.drop_since(self.times[contact_started - first] - self.policy.onset_margin_s)
+
+    def drop_since(self, t: float) -> int:
+        """Drop the waiting samples from ``t`` [s] on; the number dropped."""
+        head, tail = self._head, self._tail
+        self._tail = head + int(np.searchsorted(self._t[head:tail], t, side="left"))
         return tail - self._tail
 
 

@@ -92,6 +92,7 @@ class Counters:
     dropped: int = 0          # set by the daemon (ring buffer overflow)
     offered: int = 0          # samples given to the adaptation
     discarded_onsets: int = 0  # free-looking samples dropped because a contact began
+    held_back: int = 0         # free samples kept from training: a weak contact's form
     calibration_samples: int = 0   # samples estimated during the calibration
     calibration_contact: int = 0   # of those, the calibration guard called contact
     drifts: int = 0

@@ -163,3 +163,25 @@ def test_replay_scores_an_injected_session_like_a_simulated_one(bundle, wpi_data
     assert found["episodes"] >= 1 and found["found"] + found["missed"] == found["episodes"]
     (change,) = m["setup_changes"]
     assert change["at_s"] == pytest.approx(5999 * 0.005) and change["before_N"] > 0
+
+
+def test_a_weak_contact_under_the_gate_s_bounds_is_kept_out_of_training(bundle, wpi_data,
+                                                                         tmp_path):
+    """Real motion with injected contacts (seed 3): a 1.2 N contact 2 s after the calibration
+    is too weak for the gate's bounds; its form (a tip force explains its residual) keeps it
+    out of training, and only with the watch off does it train."""
+    spec = f"inject:3:concat:{wpi_data / 'two.csv'}*4,{wpi_data / 'one_no_weight.csv'}*4"
+    off = tmp_path / "off.toml"
+    off.write_text("[gate]\nweak_contact_s = 0.0\n")
+    rows = {}
+    for name, extra in (("on", ()), ("off", ("--config", str(off)))):
+        out = tmp_path / name
+        done = _run("compare", "--policies", "gated", "--model", str(bundle), "--sessions",
+                    spec, "--out", str(out), *extra)
+        assert done.returncode == 0, done.stderr
+        (rows[name],) = json.loads((out / "compare.json").read_text())
+    assert rows["off"]["contamination"]["in_contact_after_calibration"] > 50
+    assert rows["on"]["contamination"]["in_contact_after_calibration"] == 0
+    assert rows["on"]["counters"]["held_back"] > 0 == rows["off"]["counters"]["held_back"]
+    for row in rows.values():          # the detector itself does not change
+        assert row["gate_detector"]["missed_over_N"] == 0
