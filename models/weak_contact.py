@@ -36,7 +36,8 @@ if TYPE_CHECKING:
     from wrenchd.models.physics.kinematics import PSMKinematics
 
 #: a row is kept every this long [s], and the kept rows are judged every ``JUDGE_S`` [s]
-STRIDE_S, JUDGE_S = 0.01, 0.1
+#: (or when ``ROWS`` wait)
+STRIDE_S, JUDGE_S, ROWS = 0.01, 0.1, 32
 
 
 class WeakContactWatch:
@@ -61,6 +62,9 @@ class WeakContactWatch:
         self.config = config
         self._kinematics = kinematics
         self.held_back = 0                  # runs held back so far
+        # rows waiting to be judged (copied: the caller's arrays are not kept)
+        self._q, self._r, self._t = np.empty((ROWS, 6)), np.empty((ROWS, 6)), np.empty(ROWS)
+        self._n = 0
         self._clear = False                 # nothing kept since the last clear()
         self.clear()
 
@@ -70,9 +74,7 @@ class WeakContactWatch:
         if self._clear:
             return
         self._clear = True
-        self._rows_q: list[np.ndarray] = []
-        self._rows_r: list[np.ndarray] = []
-        self._rows_t: list[float] = []
+        self._n = 0
         self._judged: deque[tuple[float, float, float]] = deque()   # (t, misfit, |f|)
         self._next_row = -math.inf
         self._next_judge = -math.inf
@@ -88,23 +90,24 @@ class WeakContactWatch:
         self._clear = False
         if t >= self._next_row:
             self._next_row = t + STRIDE_S
-            self._rows_q.append(position)
-            self._rows_r.append(residual)
-            self._rows_t.append(t)
-            if t >= self._next_judge:
+            n = self._n
+            self._q[n] = position
+            self._r[n] = residual
+            self._t[n] = t
+            self._n = n + 1
+            if t >= self._next_judge or self._n == ROWS:
                 self._next_judge = t + JUDGE_S
                 self._judge(t, std)
         return self.holding
 
     def _judge(self, t: float, std: np.ndarray) -> None:
         cfg = self.config
-        q = np.asarray(self._rows_q, float)
-        misfit, f = tip_force_fit(self._kinematics.jacobian(q, "hybrid"),
-                                  np.asarray(self._rows_r, float), np.asarray(std, float))
+        n, self._n = self._n, 0
+        misfit, f = tip_force_fit(self._kinematics.jacobian(self._q[:n], "hybrid"),
+                                  self._r[:n], np.asarray(std, float))
         force = np.sqrt(np.sum(f * f, axis=1))
         judged = self._judged
-        judged.extend(zip(self._rows_t, misfit.tolist(), force.tolist()))
-        self._rows_q, self._rows_r, self._rows_t = [], [], []
+        judged.extend(zip(self._t[:n].tolist(), misfit.tolist(), force.tolist()))
         while judged and judged[0][0] < t - cfg.weak_contact_s:
             judged.popleft()
         if len(judged) < max(3, 0.5 * cfg.weak_contact_s / STRIDE_S):   # half a window
