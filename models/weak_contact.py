@@ -54,14 +54,14 @@ class WeakContactWatch:
     >>> q = np.array([0.2, -0.1, 0.12, 0.3, 0.1, -0.2])
     >>> push = kin.jacobian(q[None], "hybrid")[0, :3, :].T @ np.array([0.0, 0.0, 1.5])
     >>> held = [watch.update(i * 0.001, q, push, std) for i in range(1000)]
-    >>> round(held.index(True) * 0.001, 1), held[-1], watch.held_back   # from half a window
+    >>> round(held.index(True) * 0.001, 1), held[-1], watch.runs          # from half a window
     (0.2, True, 1)
     """
 
     def __init__(self, config: GateConfig, kinematics: PSMKinematics) -> None:
         self.config = config
         self._kinematics = kinematics
-        self.held_back = 0                  # runs held back so far
+        self.runs = 0                       # runs held back so far (the pipeline counts samples)
         # rows waiting to be judged (copied: the caller's arrays are not kept)
         self._q, self._r, self._t = np.empty((ROWS, 6)), np.empty((ROWS, 6)), np.empty(ROWS)
         self._n = 0
@@ -123,6 +123,6 @@ class WeakContactWatch:
             self._since = judged[0][0]
             self.holding = True
             self.onset = self._since
-            self.held_back += 1
+            self.runs += 1
         elif t - self._since > cfg.weak_contact_max_s:
             self.holding = False                 # lasting: a model error, not a contact
