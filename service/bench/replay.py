@@ -6,6 +6,10 @@ import os
 import time
 
 
+def _rounded(x: float | None) -> float | None:
+    return None if x is None else round(x, 2)
+
+
 def run_replay_bench(duration_s: float = 120.0, policy: str = "gated", seed: int = 3) -> dict:
     """Replay a 200 Hz ``insufflation-change`` session of ``duration_s`` with ``policy``.
 
@@ -46,6 +50,8 @@ def run_replay_bench(duration_s: float = 120.0, policy: str = "gated", seed: int
         result[name] = {"samples_per_s": round(sps), "wall_s": round(wall, 2),
                         "rounds": r.status["counters"]["rounds"],
                         "waited_for_worker": r.meta.get("rounds_waited"),
+                        # of the wall time, blocked on the worker's answer (idle work aside)
+                        "blocked_on_worker_s": _rounded(r.meta.get("blocked_on_worker_s")),
                         # this process (the pipeline and the step-1 thread) and the forked
                         # adaptation worker, which has ended and been waited for by now
                         "cpu_s": round(cpu1.user + cpu1.system - cpu0.user - cpu0.system, 2),

@@ -405,6 +405,7 @@ def _run(pipeline: ArmPipeline, session: Session, msgs, config: PipelineConfig, 
         meta={"batched": batched, "step1": step1 if batched else "stream",
               "adaptation": adaptation, "result_delay_s": result_delay_s,
               "rounds_waited": getattr(pipeline.backend, "rounds_waited", None),
+              "blocked_on_worker_s": getattr(pipeline.backend, "blocked_s", None),
               "setup_changes": [[float(t), d] for t, d in sorted(setup_changes,
                                                                  key=lambda c: c[0])],
               "source": session.metadata.get("source")})

@@ -21,6 +21,7 @@ the config and ``result_delay_s``, never on how fast either process runs.
 from __future__ import annotations
 
 import multiprocessing as mp
+import time
 import traceback
 from dataclasses import replace
 from typing import Any, Callable
@@ -115,6 +116,7 @@ class WorkerAdaptation:
         self._reset_t = -np.inf             # rounds due before the last reset are void
         self.errors: list[str] = []
         self.rounds_waited = 0              # times the pipeline had to wait for the worker
+        self.blocked_s = 0.0                # wall time it sat blocked on the worker's answer [s]
         #: called while waiting for the worker, until it returns False: work of the replay's
         #: that does not depend on the adaptation (it must not change any outcome)
         self.idle_work: Callable[[], bool] | None = None
@@ -182,7 +184,9 @@ class WorkerAdaptation:
                     if idle():
                         continue
                     idle = None
+                blocked = time.perf_counter()
                 self._receive(block=True)
+                self.blocked_s += time.perf_counter() - blocked
         if not self._ready or self._ready[0].t > need:
             return []
         out = [r for r in self._ready if r.t <= need]

@@ -145,6 +145,9 @@ def test_bench_replay_times_the_replay_variants(tmp_path):
     # the worker's CPU is counted where a worker ran (the default), and only there
     assert r["default"]["worker_cpu_s"] > 0 and r["default"]["cpu_s"] > 0
     assert r["inline_adaptation"]["worker_cpu_s"] == r["frozen_no_adaptation"]["worker_cpu_s"] == 0
+    # time blocked on the worker: a part of the wall time where a worker ran, else none
+    assert 0 <= r["default"]["blocked_on_worker_s"] <= r["default"]["wall_s"]
+    assert r["inline_adaptation"]["blocked_on_worker_s"] is None
     assert r["samples_per_s"] == r["default"]["samples_per_s"]
     assert r["realtime_factor"] == pytest.approx(r["samples_per_s"] / 200.0, abs=0.01)
 
