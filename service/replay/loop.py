@@ -47,15 +47,12 @@ from wrenchd.service.pipeline.validation import accepted_indices
 from wrenchd.service.replay.source import joint_state_messages
 from wrenchd.service.replay.worker import WorkerAdaptation
 from wrenchd.service.runtime import stopping
+from wrenchd.service.runtime.scheduling import idle_priority
 
 
 #: Rows per torch step-1 call, in order (the last repeats): small first, so the replay can
 #: start while the rest is computed.
 STEP1_CHUNKS = (256, 512, 1024, 2048)
-#: The thread computes at most this many rows ahead of the replay, so that it shares the
-#: second core with the adaptation worker over the whole replay instead of competing with
-#: it at the start (the rows do not depend on when they are computed).
-STEP1_LEAD = 4096
 #: Samples per chunk of wrench gains (pinocchio Jacobians, ~2 ms).
 GAIN_CHUNK = 256
 
@@ -138,17 +135,15 @@ class BatchedEstimator(TwoStepEstimator):
         whole segment (tested). Publishes progress in ``_ready``."""
         fs = self.free_space
         try:
+            # The pipeline and the adaptation worker wait on each other (a round's net serves
+            # a second of samples after it fell due): each core idles for part of the
+            # replay. This thread takes only those idle moments, so it never delays either;
+            # the rows do not depend on when they are computed.
+            idle_priority()
             with torch.inference_mode():
                 for a, b in self._segments:
                     states, k, sizes = None, a, iter(STEP1_CHUNKS)
                     while k < b and not self._stop:
-                        if k - self.cursor > STEP1_LEAD:
-                            # woken by the next block (no polling: a poll takes the GIL
-                            # from the pipeline); the timeout only guards against a miss
-                            with self._progress:
-                                if k - self.cursor > STEP1_LEAD and not self._stop:
-                                    self._progress.wait(0.05)
-                            continue
                         stop = min(b, k + next(sizes, STEP1_CHUNKS[-1]))
                         x = torch.as_tensor(self.features[k:stop], dtype=fs.in_mean.dtype)
                         ys, states = fs.forward_normalised(x[None], states)
@@ -200,9 +195,6 @@ class BatchedEstimator(TwoStepEstimator):
         b1 = min(i + self.block, len(self.t))
         if self._ready < b1:
             self._wait_step1(b1)
-        elif self._thread is not None and self._ready < self._n:
-            with self._progress:              # the step-1 thread may wait for the cursor
-                self._progress.notify_all()
         if self._gain_ready < b1:
             self._gains_upto(b1)
         rows = np.arange(i, b1)

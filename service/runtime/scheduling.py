@@ -50,6 +50,21 @@ def one_compute_thread() -> None:
     threadpool_limits(1)
 
 
+def idle_priority() -> None:
+    """Run the calling thread only where a core would otherwise idle: Linux's ``SCHED_IDLE``
+    (any other thread that wakes takes its core at once), or the lowest nice value where
+    that class is missing. Work that nobody waits for yet (a replay's step 1 ahead of its
+    pipeline) then uses the time the other threads leave, never theirs. Best effort: a
+    thread that may not change class stays as it was."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
+    except (AttributeError, OSError):
+        try:
+            os.setpriority(os.PRIO_PROCESS, 0, 19)      # on Linux: this thread alone
+        except (AttributeError, OSError):
+            pass
+
+
 def realtime(priority: int, tid: int = 0) -> None:
     """Run thread ``tid`` (0: the calling thread, and the threads and processes it starts from
     now on) under ``SCHED_FIFO`` at ``priority`` (1-99). Raises :class:`ConfigError` saying what
