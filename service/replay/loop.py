@@ -50,9 +50,12 @@ from wrenchd.service.runtime import stopping
 from wrenchd.service.runtime.scheduling import idle_priority
 
 
-#: Rows per torch step-1 call, in order (the last repeats): small first, so the replay can
-#: start while the rest is computed.
-STEP1_CHUNKS = (256, 512, 1024, 2048)
+#: Rows per torch step-1 call on the idle-time thread (3 ms of CPU: how long it may still run
+#: once it must stop) and on the thread that takes over from it.
+STEP1_CHUNK_IDLE, STEP1_CHUNK = 256, 2048
+#: The pipeline waits this long for the idle-time thread's rows before a thread of normal
+#: priority takes over [s]
+STEP1_TAKEOVER_S = 0.5
 #: Samples per chunk of wrench gains (pinocchio Jacobians, ~2 ms).
 GAIN_CHUNK = 256
 
@@ -96,8 +99,13 @@ class BatchedEstimator(TwoStepEstimator):
         self.step1 = np.zeros((n, N_JOINTS), dtype=np.float32)
         self._segments = list(zip(starts.tolist(), np.append(starts[1:], n).tolist()))
         self._ready = 0                         # step-1 rows computed so far
+        # where step 1 goes on from: (segment, row, LSTM states), and which step-1 thread
+        # may go on (0: the idle-time one; 1: the one that took over from it)
+        self._pos: tuple[int, int, Any] = (0, 0, None)
+        self._generation = 0
+        self.step1_taken_over = False           # a thread of normal priority took over
         self.cursor = 0                         # index of the next sample step_one expects
-        self._thread: threading.Thread | None = None
+        self._threads: list[threading.Thread] = []
         self._stop = False
         self._failure: BaseException | None = None
         self._progress = threading.Condition()
@@ -108,9 +116,7 @@ class BatchedEstimator(TwoStepEstimator):
             self._ready = n
         elif step1 == "torch" and not self.free_space.training:
             # torch's LSTM releases the GIL: computed on a thread while the replay runs
-            self._thread = threading.Thread(target=self._torch_step1, daemon=True,
-                                            name="wrenchd-replay-step1")
-            self._thread.start()
+            self._start_step1(0)
         elif step1 == "torch":
             for a, b in self._segments:
                 self.step1[a:b] = self.free_space.predict_sequence(self.features[a:b])
@@ -129,40 +135,77 @@ class BatchedEstimator(TwoStepEstimator):
         self._b0 = self._b1 = 0
         self._blk: tuple[np.ndarray, ...] = ()
 
-    def _torch_step1(self) -> None:
-        """Step 1 by torch, segment by segment, each in chunks of :data:`STEP1_CHUNKS` rows
-        carrying the LSTM states: bit for bit :meth:`FreeSpaceModel.predict_sequence` of the
-        whole segment (tested). Publishes progress in ``_ready``."""
+    def _step1_chunk(self, pos: tuple[int, int, Any], size: int):
+        """Step 1 by torch on the next ``size`` rows at most from ``pos`` (segment, row, LSTM
+        states), within one segment: ``(a, b, rows (b - a, 6), pos after)``, None past the
+        last row. Chunks carrying the states give bit for bit
+        :meth:`FreeSpaceModel.predict_sequence` of the whole segment (tested)."""
+        seg, k, states = pos
+        while seg < len(self._segments) and k >= self._segments[seg][1]:
+            seg, states = seg + 1, None                 # the next segment starts afresh
+        if seg >= len(self._segments):
+            return None
+        k = max(k, self._segments[seg][0])
+        stop = min(self._segments[seg][1], k + size)
         fs = self.free_space
+        with torch.inference_mode():
+            x = torch.as_tensor(self.features[k:stop], dtype=fs.in_mean.dtype)
+            ys, states = fs.forward_normalised(x[None], states)
+            y = torch.cat(ys, dim=-1) * fs.out_std + fs.out_mean
+        return k, stop, y[0].to(torch.float64).numpy(), (seg, stop, states)
+
+    def _start_step1(self, generation: int) -> None:
+        thread = threading.Thread(target=self._torch_step1, args=(generation,), daemon=True,
+                                  name=f"wrenchd-replay-step1-{generation}")
+        self._threads.append(thread)
+        thread.start()
+
+    def _torch_step1(self, generation: int) -> None:
+        """A step-1 thread: chunk after chunk from ``_pos``, each published (``_ready``) while
+        ``generation`` is the current one.
+
+        The pipeline and the adaptation worker wait on each other (a round's net serves a
+        second of samples after it fell due), so each core idles for part of a replay. The
+        first thread (generation 0) runs in ``SCHED_IDLE``: only on that idle time, never on
+        theirs. On a machine busy with other work it may get next to none: when it keeps the
+        pipeline waiting :data:`STEP1_TAKEOVER_S`, a thread of normal priority takes over
+        from where it got to (:meth:`_wait_step1`). The rows do not depend on who computes
+        them when."""
+        idle = generation == 0
         try:
-            # The pipeline and the adaptation worker wait on each other (a round's net serves
-            # a second of samples after it fell due): each core idles for part of the
-            # replay. This thread takes only those idle moments, so it never delays either;
-            # the rows do not depend on when they are computed.
-            idle_priority()
-            with torch.inference_mode():
-                for a, b in self._segments:
-                    states, k, sizes = None, a, iter(STEP1_CHUNKS)
-                    while k < b and not self._stop:
-                        stop = min(b, k + next(sizes, STEP1_CHUNKS[-1]))
-                        x = torch.as_tensor(self.features[k:stop], dtype=fs.in_mean.dtype)
-                        ys, states = fs.forward_normalised(x[None], states)
-                        y = torch.cat(ys, dim=-1) * fs.out_std + fs.out_mean
-                        self.step1[k:stop] = y[0].to(torch.float64).numpy()
-                        k = stop
-                        with self._progress:
-                            self._ready = k
-                            self._progress.notify_all()
+            if idle:
+                idle_priority()
+            while True:
+                with self._progress:
+                    if self._stop or generation != self._generation:
+                        return
+                    pos = self._pos
+                got = self._step1_chunk(pos, STEP1_CHUNK_IDLE if idle else STEP1_CHUNK)
+                with self._progress:
+                    if got is None or self._stop or generation != self._generation:
+                        return
+                    a, b, rows, self._pos = got
+                    self.step1[a:b] = rows
+                    self._ready = b
+                    self._progress.notify_all()
         except BaseException as exc:  # noqa: BLE001 - raised on the replay's thread
             with self._progress:
-                self._failure = exc
+                if generation == self._generation:
+                    self._failure = exc
                 self._progress.notify_all()
 
     def _wait_step1(self, stop: int) -> None:
-        """Block until step-1 rows up to ``stop`` are computed."""
+        """Block until step-1 rows up to ``stop`` are computed; a thread of normal priority
+        takes over from the idle-time one after :data:`STEP1_TAKEOVER_S` of waiting."""
         with self._progress:
+            deadline = time.monotonic() + STEP1_TAKEOVER_S
             while self._ready < stop and self._failure is None:
-                self._progress.wait()
+                left = deadline - time.monotonic()
+                if left <= 0 and self._generation == 0:
+                    self._generation = 1        # the idle-time thread publishes no more
+                    self.step1_taken_over = True
+                    self._start_step1(1)
+                self._progress.wait(left if left > 0 else None)
         if self._failure is not None:
             raise RuntimeError("batched replay: step 1 failed") from self._failure
 
@@ -171,9 +214,9 @@ class BatchedEstimator(TwoStepEstimator):
         self._stop = True
         with self._progress:
             self._progress.notify_all()
-        if self._thread is not None:
-            self._thread.join()
-            self._thread = None
+        for thread in self._threads:
+            thread.join()
+        self._threads = []
 
     def idle_work(self) -> bool:
         """Compute the next chunk of wrench gains ahead of need; False when all are done
@@ -397,6 +440,7 @@ def _run(pipeline: ArmPipeline, session: Session, msgs, config: PipelineConfig, 
         meta={"batched": batched, "step1": step1 if batched else "stream",
               "adaptation": adaptation, "result_delay_s": result_delay_s,
               "rounds_waited": getattr(pipeline.backend, "rounds_waited", None),
+              "step1_taken_over": getattr(pipeline.estimator, "step1_taken_over", None),
               "blocked_on_worker_s": getattr(pipeline.backend, "blocked_s", None),
               "setup_changes": [[float(t), d] for t, d in sorted(setup_changes,
                                                                  key=lambda c: c[0])],

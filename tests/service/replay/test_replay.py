@@ -6,6 +6,7 @@ import dataclasses
 import json
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -22,7 +23,8 @@ from wrenchd.models.estimator.pretrained import load_pretrained
 from wrenchd.models.adaptation import AdaptationConfig
 from wrenchd.service.pipeline import ArmPipeline, PipelineConfig
 from wrenchd.service.replay.policies import Policy, get_policy, policy_names, register_policy
-from wrenchd.service.replay.loop import STEP1_CHUNKS, BatchedEstimator, replay
+import wrenchd.service.replay.loop as replay_loop
+from wrenchd.service.replay.loop import STEP1_CHUNK, STEP1_CHUNK_IDLE, BatchedEstimator, replay
 from wrenchd.service.replay.metrics import free_error_series, replay_metrics
 from wrenchd.service.replay.output import write_replay_mcap
 from wrenchd.service.replay.source import joint_state_messages, load_session
@@ -247,12 +249,18 @@ def test_worker_adaptation_replays_the_inline_calls(fs, contact_session):
     assert first(delayed) >= first(inline) + 1.0 - 1e-9
 
 
-def test_batched_step1_on_a_thread_equals_one_torch_call(fs, contact_session):
+@pytest.mark.parametrize("starved", [False, True])
+def test_batched_step1_on_a_thread_equals_one_torch_call(fs, contact_session, monkeypatch,
+                                                        starved):
     """Step 1 computed on a thread in chunks (LSTM states carried) is, bit for bit, one
     ``predict_sequence`` over each segment (between gaps and jumps); the replay waits for
-    rows it needs."""
+    rows it needs. ``starved``: the idle-time thread gets no CPU (a busy machine), and a
+    thread of normal priority takes over from where it got to, with the same numbers."""
+    if starved:
+        monkeypatch.setattr(replay_loop, "STEP1_TAKEOVER_S", 0.05)
+        monkeypatch.setattr(replay_loop, "idle_priority", lambda: time.sleep(1.0))
     js = contact_session.joint_states
-    n = sum(STEP1_CHUNKS) + 300                           # every chunk size, then a repeat
+    n = STEP1_CHUNK + 2 * STEP1_CHUNK_IDLE + 300          # chunks of both sizes, and parts
     t = np.arange(n) / 200.0
     t[n // 2:] += 1.0                                     # a gap: two segments
     feats = np.tile(np.concatenate([js.position, js.velocity], axis=1), (3, 1))[:n]
@@ -264,6 +272,7 @@ def test_batched_step1_on_a_thread_equals_one_torch_call(fs, contact_session):
         est._wait_step1(n)
     finally:
         est.close()
+    assert est.step1_taken_over == starved
     # the tiles' seams are position jumps: segments there too
     starts = segment_starts(t, BASE.estimator.max_gap_s, feats[:, :6], feats[:, 6:],
                             BASE.estimator.max_jump)
