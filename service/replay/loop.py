@@ -50,9 +50,11 @@ from wrenchd.service.runtime import stopping
 from wrenchd.service.runtime.scheduling import idle_priority
 
 
-#: Rows per torch step-1 call on the idle-time thread (3 ms of CPU: how long it may still run
-#: once it must stop) and on the thread that takes over from it.
-STEP1_CHUNK_IDLE, STEP1_CHUNK = 256, 2048
+#: Rows per torch step-1 call (about 22 ms of CPU; a call has a cost of its own, most of it
+#: the pipeline's, which hands the GIL over for it), and on the idle-time thread once it finds
+#: itself starved (its last call took over 4x its CPU time in wall time): 3 ms of CPU, how long
+#: it may still run once the pipeline has taken over (its end is waited for).
+STEP1_CHUNK, STEP1_CHUNK_IDLE = 2048, 256
 #: The pipeline waits this long for the idle-time thread's rows before a thread of normal
 #: priority takes over [s]
 STEP1_TAKEOVER_S = 0.5
@@ -171,7 +173,7 @@ class BatchedEstimator(TwoStepEstimator):
         pipeline waiting :data:`STEP1_TAKEOVER_S`, a thread of normal priority takes over
         from where it got to (:meth:`_wait_step1`). The rows do not depend on who computes
         them when."""
-        idle = generation == 0
+        idle, size = generation == 0, STEP1_CHUNK
         try:
             if idle:
                 idle_priority()
@@ -180,7 +182,11 @@ class BatchedEstimator(TwoStepEstimator):
                     if self._stop or generation != self._generation:
                         return
                     pos = self._pos
-                got = self._step1_chunk(pos, STEP1_CHUNK_IDLE if idle else STEP1_CHUNK)
+                wall, cpu = time.perf_counter(), time.thread_time()
+                got = self._step1_chunk(pos, size)
+                if idle:
+                    starved = time.perf_counter() - wall > 4.0 * (time.thread_time() - cpu)
+                    size = STEP1_CHUNK_IDLE if starved else STEP1_CHUNK
                 with self._progress:
                     if got is None or self._stop or generation != self._generation:
                         return
