@@ -13,9 +13,9 @@ the session, the config, the seed and the delay.
 
 Fast path (``batched=True``, the default): step 1 of the estimator (the LSTMs) never adapts,
 so :class:`BatchedEstimator` computes it for every gap-free segment ahead of the pipeline,
-with torch on a thread (in chunks carrying the LSTM states, bit for bit one
+with torch on a thread of idle priority (in chunks carrying the LSTM states, bit for bit one
 :meth:`FreeSpaceModel.predict_sequence` call; torch releases the GIL, so it overlaps the
-pipeline), and the ``Corr`` correction and the damped ``J^-T`` wrench map in blocks of
+pipeline; a thread of normal priority takes over where a busy machine starves it), and the ``Corr`` correction and the damped ``J^-T`` wrench map in blocks of
 samples, recomputed from the next sample on whenever the pipeline swaps the correction net
 (the wrench gains are computed in chunks when needed or while the pipeline waits for the
 adaptation worker). It stands in for the pipeline's estimator and returns the
@@ -216,7 +216,7 @@ class BatchedEstimator(TwoStepEstimator):
             raise RuntimeError("batched replay: step 1 failed") from self._failure
 
     def close(self) -> None:
-        """Stop and join the step-1 thread (before anything forks again)."""
+        """Stop and join the step-1 threads (before anything forks again)."""
         self._stop = True
         with self._progress:
             self._progress.notify_all()
