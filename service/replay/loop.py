@@ -15,11 +15,12 @@ Fast path (``batched=True``, the default): step 1 of the estimator (the LSTMs) n
 so :class:`BatchedEstimator` computes it for every gap-free segment ahead of the pipeline,
 with torch on a thread of idle priority (in chunks carrying the LSTM states, bit for bit one
 :meth:`FreeSpaceModel.predict_sequence` call; torch releases the GIL, so it overlaps the
-pipeline; a thread of normal priority takes over where a busy machine starves it), and the ``Corr`` correction and the damped ``J^-T`` wrench map in blocks of
-samples, recomputed from the next sample on whenever the pipeline swaps the correction net
-(the wrench gains are computed in chunks when needed or while the pipeline waits for the
-adaptation worker). It stands in for the pipeline's estimator and returns the
-same :class:`EstimatorOutput` per sample; the rest of ``process`` is untouched. Its step-1
+pipeline; a thread of normal priority takes over where a busy machine starves it), and the
+``Corr`` correction and the damped ``J^-T`` wrench map in blocks of samples, recomputed
+from the next sample on whenever the pipeline swaps the correction net (the wrench gains
+are computed in chunks when needed or while the pipeline waits for the adaptation worker).
+It stands in for the pipeline's estimator and returns the same :class:`EstimatorOutput` per
+sample; the rest of ``process`` is untouched. Its step-1
 numbers come by default from torch's float32 LSTM instead of the NumPy float32 kernel of the
 streaming path: they agree to float32 rounding (about 1e-6 relative); ``step1="kernel"``
 gives the streaming path's numbers bit for bit (a parity test checks it).

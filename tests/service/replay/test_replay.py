@@ -24,7 +24,7 @@ from wrenchd.models.adaptation import AdaptationConfig
 from wrenchd.service.pipeline import ArmPipeline, PipelineConfig
 from wrenchd.service.replay.policies import Policy, get_policy, policy_names, register_policy
 import wrenchd.service.replay.loop as replay_loop
-from wrenchd.service.replay.loop import STEP1_CHUNK, STEP1_CHUNK_IDLE, BatchedEstimator, replay
+from wrenchd.service.replay.loop import BatchedEstimator, replay
 from wrenchd.service.replay.metrics import free_error_series, replay_metrics
 from wrenchd.service.replay.output import write_replay_mcap
 from wrenchd.service.replay.source import joint_state_messages, load_session
@@ -256,11 +256,12 @@ def test_batched_step1_on_a_thread_equals_one_torch_call(fs, contact_session, mo
     ``predict_sequence`` over each segment (between gaps and jumps); the replay waits for
     rows it needs. ``starved``: the idle-time thread gets no CPU (a busy machine), and a
     thread of normal priority takes over from where it got to, with the same numbers."""
+    monkeypatch.setattr(replay_loop, "STEP1_CHUNK", 256)    # several chunks a segment
     if starved:
         monkeypatch.setattr(replay_loop, "STEP1_TAKEOVER_S", 0.05)
         monkeypatch.setattr(replay_loop, "idle_priority", lambda: time.sleep(1.0))
     js = contact_session.joint_states
-    n = STEP1_CHUNK + 2 * STEP1_CHUNK_IDLE + 300          # chunks of both sizes, and parts
+    n = 16 * 256 + 60                                    # past a tile seam too
     t = np.arange(n) / 200.0
     t[n // 2:] += 1.0                                     # a gap: two segments
     feats = np.tile(np.concatenate([js.position, js.velocity], axis=1), (3, 1))[:n]
