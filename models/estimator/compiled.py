@@ -99,6 +99,32 @@ def _kernels() -> dict[str, Callable] | None:
     return _compiled
 
 
+#: the element-wise kernels of the correction net's fine-tuning
+FINETUNE_KERNELS = ("hidden_forward", "output_error", "hidden_backward", "adam_update")
+
+
+def finetune_kernels() -> dict[str, Callable] | None:
+    """The fine-tuning's element-wise kernels (:data:`FINETUNE_KERNELS`), each called once
+    on a few elements so that it is compiled or read from numba's cache now; None where
+    numba is missing, switched off or fails here (NumPy serves)."""
+    kernels = _kernels()
+    if kernels is None:
+        return None
+    from wrenchd.models.estimator import compiled_kernels as ck
+
+    f32 = np.float32
+    one, row = np.ones((1, 2), f32), np.ones(2, f32)
+    try:
+        ck.hidden_forward(one.copy(), row, one.copy())
+        ck.output_error(one.copy(), row, one, f32(1.0), row.copy())
+        ck.hidden_backward(one.copy(), one, row.copy())
+        ck.adam_update(row.copy(), row.copy(), row.copy(), row.copy(), *([f32(0.5)] * 8))
+    except Exception as exc:  # noqa: BLE001 - the NumPy kernels serve instead
+        warnings.warn(f"compiled kernels unavailable, NumPy serves: {exc}", RuntimeWarning)
+        return None
+    return {name: getattr(ck, name) for name in FINETUNE_KERNELS}
+
+
 def _import_kernels(numba):
     """The kernels' module; its functions cache their machine code next to it or in the
     user's cache, and where neither is writable (a hardened service: a read-only system, no

@@ -150,3 +150,67 @@ def mlp2_residual(window, step1, w1, b1, w2, b2):
             acc += w2[j, i] * a[i]
         out[j] = step1[j] + acc
     return out
+
+
+# The correction net's fine-tuning (:mod:`wrenchd.models.estimator.corr_finetune`): the
+# element-wise parts of a step, each NumPy float32 operation of the NumPy form in its order,
+# one element at a time. No fastmath (it would fuse a multiply and an add into one rounding):
+# the same bits as NumPy, so a fine-tuning gives the same nets with or without numba.
+exact = numba.njit(cache=True, nogil=True, error_model="numpy")
+
+
+@exact
+def hidden_forward(z, b1, h):
+    """``z += b1; h = max(z, 0)`` for the hidden layer's (B, H) pre-activations ``z``."""
+    rows, cols = z.shape
+    zero = f32(0.0)
+    for r in range(rows):
+        for j in range(cols):
+            v = z[r, j] + b1[j]
+            z[r, j] = v
+            h[r, j] = v if v >= zero else zero
+
+
+@exact
+def output_error(err, b2, target, scale, g_b2):
+    """``err = (err + b2 - target) * scale`` (the loss's gradient at the output, in place) and
+    ``g_b2`` its column sums, summed row after row."""
+    rows, cols = err.shape
+    for j in range(cols):
+        g_b2[j] = f32(0.0)
+    for r in range(rows):
+        for j in range(cols):
+            v = ((err[r, j] + b2[j]) - target[r, j]) * scale
+            err[r, j] = v
+            g_b2[j] += v
+
+
+@exact
+def hidden_backward(d_h, z, g_b1):
+    """``d_h *= z > 0`` (the ReLU's gradient, in place) and ``g_b1`` its column sums."""
+    rows, cols = d_h.shape
+    zero = f32(0.0)
+    for j in range(cols):
+        g_b1[j] = zero
+    for r in range(rows):
+        for j in range(cols):
+            v = d_h[r, j] * (f32(1.0) if z[r, j] > zero else zero)
+            d_h[r, j] = v
+            g_b1[j] += v
+
+
+@exact
+def adam_update(flat, g, m, v, weight_decay, b1, b2, gain1, gain2, step_size, root_bc2, eps):
+    """Adam's update of the flat parameters (every argument float32): ``g += wd flat``;
+    ``m = b1 m + (1 - b1) g``; ``v = b2 v + (1 - b2) g^2``;
+    ``flat -= step_size m / (sqrt(v) / root_bc2 + eps)``."""
+    for i in range(flat.shape[0]):
+        gi = g[i]
+        if weight_decay != f32(0.0):
+            gi = gi + flat[i] * weight_decay
+            g[i] = gi
+        mi = m[i] * b1 + gi * gain1
+        vi = v[i] * b2 + (gi * gi) * gain2
+        m[i] = mi
+        v[i] = vi
+        flat[i] = flat[i] - (mi / (np.sqrt(vi) / root_bc2 + eps)) * step_size

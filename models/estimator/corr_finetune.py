@@ -10,6 +10,14 @@ architecture is a handful of matrix products, written out here; the update is to
 ``tests/models/estimator/test_corr_finetune.py`` checks the gradients and updates against
 torch autograd and ``torch.optim.Adam``.
 
+The matrix products are NumPy's (OpenBLAS) everywhere. After :func:`use_compiled_kernels`
+has returned True in a process, the element-wise rest of a step (bias, ReLU and its gradient,
+the column sums, the Adam update) runs as a few numba kernels
+(:mod:`~wrenchd.models.estimator.compiled_kernels`) instead of a dozen NumPy calls; they
+perform NumPy's float32 operations in NumPy's order, so a fine-tuning gives the same nets bit
+for bit either way (``tests/models/estimator/test_corr_finetune.py``), whenever the switch
+happens.
+
 Loss: the mean over the batch and the six joints of the squared error of the net's output
 (the correction in torque-std units) against the target.
 """
@@ -23,6 +31,24 @@ import torch
 from torch import nn
 
 from wrenchd.models.errors import ConfigError
+
+#: the element-wise kernels by name, once :func:`use_compiled_kernels` has loaded them
+#: (replaced whole, never changed in place: a step reads it once)
+elementwise_kernels: dict | None = None
+
+
+def use_compiled_kernels() -> bool:
+    """Load the compiled element-wise kernels (numba's import and its disk cache: a few tenths
+    of a second, seconds where nothing is cached) and use them in every step after; False where
+    numba is missing or switched off (NumPy goes on serving). Safe from any thread: steps
+    before the kernels are ready run on NumPy, with the same results."""
+    global elementwise_kernels
+    from wrenchd.models.estimator.compiled import finetune_kernels
+
+    kernels = finetune_kernels()
+    if kernels is not None:
+        elementwise_kernels = kernels
+    return kernels is not None
 
 
 class CorrFineTuner:
@@ -105,6 +131,9 @@ class CorrFineTuner:
         g_w1, g_b1, g_w2, g_b2 = self.grads
         ws = self._workspace(len(inp))
         z, h, d_h, err = ws["z"], ws["h"], ws["d_h"], ws["out"]
+        kernels = elementwise_kernels
+        if kernels is not None and not with_loss:
+            return None, self._compiled_gradients(inp, target, ws, kernels)
         np.matmul(inp, w1, out=z)
         z += b1
         np.maximum(z, 0.0, out=h)
@@ -123,6 +152,22 @@ class CorrFineTuner:
         np.sum(d_h, axis=0, out=g_b1)
         return loss, self.grads
 
+    def _compiled_gradients(self, inp: np.ndarray, target: np.ndarray,
+                            ws: dict[str, np.ndarray], kernels: dict) -> list[np.ndarray]:
+        """:meth:`gradients` without the loss, its element-wise parts compiled."""
+        w1, b1, w2, b2 = self.params
+        g_w1, g_b1, g_w2, g_b2 = self.grads
+        z, h, d_h, err = ws["z"], ws["h"], ws["d_h"], ws["out"]
+        np.matmul(inp, w1, out=z)
+        kernels["hidden_forward"](z, b1, h)
+        np.matmul(h, w2, out=err)
+        kernels["output_error"](err, b2, target, np.float32(2.0 / err.size), g_b2)
+        np.matmul(h.T, err, out=g_w2)
+        np.matmul(err, w2.T, out=d_h)
+        kernels["hidden_backward"](d_h, z, g_b1)
+        np.matmul(inp.T, d_h, out=g_w1)
+        return self.grads
+
     def step(self, inp: np.ndarray, target: np.ndarray, with_loss: bool = True) -> float | None:
         """One Adam step on a mini-batch; returns the loss before the step (None unless
         ``with_loss``)."""
@@ -134,6 +179,14 @@ class CorrFineTuner:
         step_size = self.lr / (1.0 - b1 ** self.steps)
         root_bc2 = math.sqrt(1.0 - b2 ** self.steps)
         g, m, v, tmp, denom = self.grad, self.m, self.v, self._tmp, self._denom
+        kernels = elementwise_kernels
+        if kernels is not None:
+            f32 = np.float32
+            kernels["adam_update"](self.flat, g, m, v, f32(self.weight_decay),
+                                     self._decay[0, 0], self._decay[1, 0], self._gain[0, 0],
+                                     self._gain[1, 0], f32(step_size), f32(root_bc2),
+                                     f32(self.eps))
+            return loss
         if self.weight_decay:
             np.multiply(self.flat, np.float32(self.weight_decay), out=tmp)
             g += tmp

@@ -53,3 +53,55 @@ def test_adam_steps_match_torch_adam_with_weight_decay():
 def test_other_structures_are_refused():
     with pytest.raises(ConfigError):
         CorrFineTuner(nn.Sequential(nn.Linear(3, 4), nn.Tanh(), nn.Linear(4, 2)), lr=1e-3)
+
+
+@pytest.fixture
+def compiled_steps(monkeypatch):
+    """The compiled element-wise kernels, loaded; the module's switch off again after."""
+    pytest.importorskip("numba")
+    from wrenchd.models.estimator import corr_finetune
+
+    monkeypatch.setattr(corr_finetune, "elementwise_kernels", None)
+    assert corr_finetune.use_compiled_kernels()
+    return corr_finetune.elementwise_kernels
+
+
+@pytest.mark.parametrize("weight_decay", [0.0, 0.01])
+@pytest.mark.parametrize("rows", [128, 37])
+def test_compiled_steps_give_numpy_s_nets_bit_for_bit(compiled_steps, weight_decay, rows):
+    """Two tuners from one net, one on NumPy, one compiled, through 200 steps: the same
+    weights, moments and gradients to the last bit, not merely close (adaptation is chaotic
+    in float32: a last-bit difference grows into another net within a round)."""
+    from wrenchd.models.estimator import corr_finetune
+
+    kernels = compiled_steps
+    rng = np.random.default_rng(rows)
+    on_numpy = CorrFineTuner(_net(), lr=2e-3, weight_decay=weight_decay)
+    compiled = CorrFineTuner(_net(), lr=2e-3, weight_decay=weight_decay)
+    for _ in range(200):
+        inp = rng.normal(0, 1, (rows, 126)).astype(np.float32)
+        target = rng.normal(0, 0.3, (rows, 6)).astype(np.float32)
+        corr_finetune.elementwise_kernels = None
+        on_numpy.step(inp, target, with_loss=False)
+        corr_finetune.elementwise_kernels = kernels
+        compiled.step(inp, target, with_loss=False)
+    for a, b in ((on_numpy.flat, compiled.flat), (on_numpy.m, compiled.m),
+                 (on_numpy.v, compiled.v), (on_numpy.grad, compiled.grad)):
+        assert a.tobytes() == b.tobytes()
+    assert compiled.steps == 200
+
+
+def test_a_step_asked_for_its_loss_runs_on_numpy_and_agrees(compiled_steps):
+    inp, target = _batches(1)[0]
+    loss, _ = CorrFineTuner(_net(), lr=1e-3).gradients(inp, target)
+    expected = float(np.mean((CorrFineTuner(_net(), lr=1e-3).forward(inp) - target) ** 2))
+    assert loss == pytest.approx(expected, rel=1e-6)
+
+
+def test_without_numba_the_switch_says_so_and_numpy_serves(monkeypatch):
+    from wrenchd.models.estimator import compiled, corr_finetune
+
+    monkeypatch.setattr(corr_finetune, "elementwise_kernels", None)
+    monkeypatch.setenv(compiled.ENV, "0")
+    assert corr_finetune.use_compiled_kernels() is False
+    assert corr_finetune.elementwise_kernels is None
