@@ -21,6 +21,7 @@ the config and ``result_delay_s``, never on how fast either process runs.
 from __future__ import annotations
 
 import multiprocessing as mp
+import threading
 import time
 import traceback
 from dataclasses import replace
@@ -41,7 +42,12 @@ def _serve(conn, config: dict[str, Any], normalisation: dict[str, np.ndarray] | 
     """Worker main: replay the pipeline's calls on the shared adaptation host, in sample time;
     answer rounds and progress."""
     from wrenchd.models.adaptation.host import AdapterHost
+    from wrenchd.models.estimator.corr_finetune import use_compiled_kernels
 
+    # the rounds' element-wise arithmetic compiled, loaded beside the first rows (the
+    # calibration minute, when no round is due): until it is ready NumPy serves, bit for bit
+    threading.Thread(target=use_compiled_kernels, name="wrenchd-finetune-kernels",
+                     daemon=True).start()
     host = AdapterHost({ARM: AdaptationConfig(**config)}, {ARM: normalisation})
     try:
         while True:
