@@ -273,10 +273,13 @@ class CalibrationPhase:
         elif self._was_guarded and self.refuses:
             # the gate takes over from the guard in the middle of a contact: it goes on
             # with it (fresh, it would need a run of samples to find it, and train on them)
-            starts = [g.contact_start for g in (self.guard.gate, self._warmup_gate)
+            warm = self._warmup_gate
+            unconfirmed = (warm is not None and not warm.in_contact
+                           and self.config.calibration_guard.warmup_confirm)
+            starts = [g.contact_start for g in (self.guard.gate, warm)
                       if g is not None and g.in_contact
-                      and not (g is self.guard.gate and self._warmup_gate is not None
-                               and g.contact_start == self._warmup_ended)]
+                      and not (g is self.guard.gate and warm is not None
+                               and (g.contact_start == self._warmup_ended or unconfirmed))]
             if starts:
                 gate.take_over_contact(min(starts), t)
             self._warmup_gate = None
@@ -314,8 +317,9 @@ class CalibrationPhase:
     def _judge_corrected(self, index: int, t: float, residual: np.ndarray,
                          guard: GateDecision) -> GateDecision:
         """The guard's verdict on a sample of the gate's warm-up combined with the warm-up
-        gate's on the residual Corr leaves (6,) [N m; N]: contact where either calls it,
-        trainable where both let it train. A contact of the guard's that the warm-up gate
+        gate's on the residual Corr leaves (6,) [N m; N]: contact where the warm-up gate
+        calls it (from the guard's onset where the guard called it first), and, without
+        ``warmup_confirm``, where the guard alone does; trainable where both let it train. A contact of the guard's that the warm-up gate
         held too and has ended is published free from there (the corrected residual says the
         force is gone; the raw one still carries what Corr takes out), never trainable until
         the guard ends it as well."""
@@ -326,7 +330,8 @@ class CalibrationPhase:
             self._warmup_held = False
             self._warmup_ended = guard.contact_started
         if g.free and g.contact_started < 0:
-            if 0 <= guard.contact_started == self._warmup_ended:
+            if 0 <= guard.contact_started and (guard.contact_started == self._warmup_ended
+                                               or self.config.calibration_guard.warmup_confirm):
                 return guard._replace(free=True, trainable=False)
             return guard
         starts = [s for s in (guard.contact_started, g.contact_started) if s >= 0]

@@ -128,8 +128,16 @@ class CalibrationGuardConfig(BaseModel):
         description="refuse: with that prior, a second gate, started from scale_factor x "
                     "the prior, judges the gate's warm-up after the calibration beside the "
                     "guard, on the residual the correction net leaves: a sample is contact "
-                    "where either calls it (the guard alone judges the raw step-1 residual, "
-                    "where a trocar's force can hide a contact)")
+                    "where it calls it, and where the guard does (see warmup_confirm; the "
+                    "guard alone judges the raw step-1 residual, where a trocar's force can "
+                    "hide a contact)")
+    warmup_confirm: bool = Field(
+        default=True,
+        description="judge_warmup: a contact the guard calls in the gate's warm-up is "
+                    "published only while the second gate calls it too (from the guard's "
+                    "onset); before, its samples are published free and train nothing (the "
+                    "raw step-1 residual the guard judges swings at reversals the correction "
+                    "net has learnt)")
     warn_fraction: float = Field(
         default=0.3, ge=0.0, le=1.0,
         description="a calibration whose samples the guard called contact more than this "

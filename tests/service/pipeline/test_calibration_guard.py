@@ -276,13 +276,14 @@ def test_a_calibration_shorter_than_the_delay_line_still_trains():
 
 
 def _warmup_run(judge_warmup: bool, raw_load_n: float = 0.0,
-                decisions: list | None = None) -> tuple[list[bool], list]:
+                decisions: list | None = None, contact_n: float = 3.0,
+                confirm: bool = True) -> tuple[list[bool], list]:
     """A calibration of 10 s at 200 Hz with a trocar's 2 N swinging in the step-1 residual
     on insertion (the correction net takes it out: the corrected residual is noise), then a
-    3 N insertion contact 1 s into the gate's 5 s warm-up (``raw_load_n``: a load in the
-    step-1 residual alone, which step 2 takes out, from the contact's start to 13.5 s). The
-    verdicts on the contact's samples and the calibrated event; ``decisions``: every
-    ``(t, decision)`` from 11 s on."""
+    ``contact_n`` insertion contact 1 s into the gate's 5 s warm-up (``raw_load_n``: a load
+    in the step-1 residual alone, which step 2 takes out, from the contact's start to 13.5 s;
+    ``confirm``: ``calibration_guard.warmup_confirm``). The verdicts on the contact's samples
+    and the calibrated event; ``decisions``: every ``(t, decision)`` from 11 s on."""
     from types import SimpleNamespace
 
     from wrenchd.service.pipeline.calibration import CalibrationPhase
@@ -290,7 +291,7 @@ def _warmup_run(judge_warmup: bool, raw_load_n: float = 0.0,
     from wrenchd.service.pipeline.records import Counters
 
     config = PipelineConfig(calibration_s=10.0, calibration_guard=CalibrationGuardConfig(
-        judge_warmup=judge_warmup))
+        judge_warmup=judge_warmup, warmup_confirm=confirm))
     gate = FreeMotionGate(config.gate)
     heldout = np.array([0.05, 0.05, 0.2, 0.005, 0.005, 0.005])
     phase = CalibrationPhase("PSM1", config, SimpleNamespace(validation_rmse=heldout), gate,
@@ -305,7 +306,7 @@ def _warmup_run(judge_warmup: bool, raw_load_n: float = 0.0,
         trocar[2] = 2.0 * np.sin(2 * np.pi * 0.7 * t) + 0.5 * np.sign(np.sin(2 * np.pi * 1.3 * t))
         contact = np.zeros(6)
         if 11.0 <= t < 12.0:
-            contact[2] = 3.0
+            contact[2] = contact_n
         external = noise + contact                   # what step 2 leaves: noise and contact
         out = SimpleNamespace(step1_torque=np.zeros(6), external_torque=external)
         effort = trocar + external                   # the step-1 residual carries the trocar
@@ -347,6 +348,20 @@ def test_a_contact_the_corrected_residual_has_ended_is_published_free_while_the_
     held = [(t, d) for t, d in decisions if contact[-1] < t < 13.5]
     assert held and all(d.free and d.contact_started >= 0 and not d.trainable for _, d in held)
     assert any(d.trainable for t, d in decisions if t >= 14.5)    # after the guard's end
+
+
+@pytest.mark.parametrize("confirm", [True, False])
+def test_what_only_the_raw_residual_shows_in_the_warm_up_is_published_once_confirmed(confirm):
+    """No contact, but a 20 N load in the step-1 residual alone from 11 s to 13.5 s (what a
+    reversal the correction net has learnt does to the raw residual): the guard calls it
+    contact, the second gate, on the corrected residual, does not. With ``warmup_confirm``
+    it is published free; either way none of it trains."""
+    decisions: list = []
+    _warmup_run(True, raw_load_n=20.0, decisions=decisions, contact_n=0.0, confirm=confirm)
+    held = [d for t, d in decisions if 11.1 < t < 13.5]
+    assert held and all(d.contact_started >= 0 and not d.trainable for d in held)
+    published = [d for d in held if not d.free]
+    assert (not published) if confirm else len(published) == len(held)
 
 
 def test_doctest():
