@@ -319,10 +319,10 @@ class CalibrationPhase:
         """The guard's verdict on a sample of the gate's warm-up combined with the warm-up
         gate's on the residual Corr leaves (6,) [N m; N]: contact where the warm-up gate
         calls it (from the guard's onset where the guard called it first), and, without
-        ``warmup_confirm``, where the guard alone does; trainable where both let it train. A contact of the guard's that the warm-up gate
-        held too and has ended is published free from there (the corrected residual says the
-        force is gone; the raw one still carries what Corr takes out), never trainable until
-        the guard ends it as well."""
+        ``warmup_confirm``, where the guard alone does; trainable where both let it train. A
+        contact of the guard's that the warm-up gate held too and has ended is published free
+        from there (the corrected residual says the force is gone; the raw one still carries
+        what Corr takes out), never trainable until the guard ends it as well."""
         g = self._warmup_gate.update(index, t, residual)
         if g.contact_started >= 0:
             self._warmup_held = True
