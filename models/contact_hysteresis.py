@@ -270,6 +270,12 @@ class ContactHysteresis:
             self._watch(t, again=True)
         return HELD
 
+    @property
+    def exiting(self) -> bool:
+        """The last sample held was under the exit bounds: the contact's end was pending
+        (``exit_s`` not yet over)."""
+        return self._below_since is not None
+
     def _end(self) -> None:
         self.in_contact, self._above, self._joint_above = False, 0, 0
         self.published = False

@@ -115,6 +115,14 @@ class GateConfig(BaseModel):
                     "leaves unexplained over which a contact's residual is not a tip "
                     "force's (a tip contact leaves the model's noise, a random residual "
                     "about a half)")
+    form_withdraw_s: float = Field(
+        default=5.0, ge=0.0,
+        description="a set-up change called on a contact's form (tip_setup_s) while the "
+                    "contact was in force is withdrawn when, within this long, the residual on "
+                    "the scale before it stays under the exit bounds for exit_s: it was a "
+                    "contact, now ended, and that scale comes back (a set-up change leaves the "
+                    "residual over it); a call made while the contact's end was pending stands "
+                    "[s]; 0: never")
     weak_contact_s: float = Field(
         default=0.3, ge=0.0,
         description="with the arm's kinematics, free samples whose residual a tip force of "
@@ -222,6 +230,8 @@ class GateDecision(NamedTuple):
         trainable: free and quiet enough to train on.
         setup_change: the contact ending at this sample was taken for a set-up change (the
             tip force swung with the pose); ``recalibrated`` is set too.
+        setup_withdrawn: a set-up change called on a contact's form was withdrawn at this
+            sample (``form_withdraw_s``): the scale before it is back.
     """
 
     free: bool
@@ -230,6 +240,22 @@ class GateDecision(NamedTuple):
     recalibrated: bool = False
     trainable: bool = False
     setup_change: bool = False
+    setup_withdrawn: bool = False
+
+
+class _FormCall:
+    """A set-up change called on a contact's form while the contact was in force, on
+    probation: the scale before it, and whether the residual on that scale falls under the
+    exit bounds for ``exit_s`` (the contact ends) before ``form_withdraw_s`` is over
+    (:meth:`FreeMotionGate.update`)."""
+
+    __slots__ = ("snapshot", "inv_var", "until", "below_since", "joint_held")
+
+    def __init__(self, snapshot: dict, std: np.ndarray, until: float) -> None:
+        self.snapshot, self.until = snapshot, until
+        self.inv_var = (1.0 / std ** 2).tolist()
+        self.below_since: float | None = None
+        self.joint_held = 0
 
 
 class FreeMotionGate:
@@ -272,6 +298,8 @@ class FreeMotionGate:
         self.scale.reset(prior)
         self.contact = self._hysteresis()
         self._probation_until = -math.inf      # nothing trains before this
+        self._form_call: _FormCall | None = None
+        self.withdrawn = 0                     # set-up changes called on form, withdrawn
 
     def seed(self, std: np.ndarray) -> None:
         """Start from a known free-motion residual scale instead of warming up: a gate that
@@ -285,6 +313,7 @@ class FreeMotionGate:
         self.scale.seed(std)
         self.contact = self._hysteresis()
         self._probation_until = -math.inf
+        self._form_call = None
 
     def rescale(self, std: np.ndarray) -> None:
         """Move a calibrated gate's scale to a known free-motion level, keeping its contact
@@ -295,6 +324,7 @@ class FreeMotionGate:
             DataError: ``std`` is not six finite values, or the gate is still warming up.
         """
         self.scale.rescale(std)
+        self._form_call = None                 # the level before is no longer the one to restore
 
     def _hysteresis(self) -> ContactHysteresis:
         if self._kinematics is None:
@@ -368,15 +398,12 @@ class FreeMotionGate:
         cfg, scale, contact = self.config, self.scale, self.contact
         r = residual.tolist() if isinstance(residual, np.ndarray) else [float(x) for x in residual]
         zsq, steady = scale.squared_scores(r, t, velocity)
+        withdrawn = self._form_call is not None and self._withdraw(t, zsq)
+        if withdrawn:
+            zsq, steady = scale.squared_scores(r, t, velocity)
         peak = max(zsq)
         score = math.sqrt(peak)
-        if cfg.joint_without_peak:
-            joint = math.sqrt((sum(zsq) - peak) / (N_JOINTS - 1))
-        elif self._joint_cap_sq is not None:
-            cap = self._joint_cap_sq
-            joint = math.sqrt(sum(z if z < cap else cap for z in zsq) / N_JOINTS)
-        else:
-            joint = math.sqrt(sum(zsq) / N_JOINTS)
+        joint = self._joint_score(zsq, peak)
         if not scale.calibrated:                      # learn the level first, call nothing
             scale.warm(r, steady, zsq)
             if scale.calibrated:
@@ -395,12 +422,13 @@ class FreeMotionGate:
             tr = (scale.train_score(r) if cfg.robust_warmup or velocity is not None
                   and scale.reversal is not None else score)
             return GateDecision(True, score, -1, trainable=(tr < cfg.train_sigma
-                                                            and t >= self._probation_until))
+                                                            and t >= self._probation_until),
+                                setup_withdrawn=withdrawn)
         outcome = contact.hold(t, score, joint, r, force, position)
         if outcome == ch.HELD:
             # with release_free, a released contact is published free (never trainable)
             return GateDecision(cfg.release_free and not contact.published, score,
-                                contact.contact_start)
+                                contact.contact_start, setup_withdrawn=withdrawn)
         if outcome == ch.ENDED:
             # the first free sample is not trusted: it is the contact's last, and says
             # where that contact began (a -1 here would read as "onset unknown" and make
@@ -412,9 +440,48 @@ class FreeMotionGate:
         # so is one judged on seconds of its form
         rows = contact.judged if setup else contact.buffered()
         if setup and (contact.announced or contact.tip_form):
+            # a call made while the contact's end was pending stands: a residual that swings
+            # with the pose is quiet at times, and a contact ending at the call is no proof
+            self._form_call = (_FormCall(scale.snapshot(), scale.std, t + cfg.form_withdraw_s)
+                               if contact.tip_form and not contact.exiting
+                               and cfg.form_withdraw_s > 0 else None)
             scale.relearn(rows[:, ch.RES], r, cfg.announced_widen, at_least=scale.std.copy())
         else:
+            self._form_call = None
             scale.relearn(rows[:, ch.RES], r)
         self._probation_until = t + (cfg.setup_probation_s if setup else cfg.max_contact_s)
         return GateDecision(False, score, contact.ended_start, recalibrated=True,
                             setup_change=setup)
+
+    def _joint_score(self, zsq: list[float], peak: float) -> float:
+        """The joint score of squared scores ``zsq`` (6,) whose largest is ``peak``."""
+        if self.config.joint_without_peak:
+            return math.sqrt((sum(zsq) - peak) / (N_JOINTS - 1))
+        cap = self._joint_cap_sq
+        if cap is not None:
+            return math.sqrt(sum(z if z < cap else cap for z in zsq) / N_JOINTS)
+        return math.sqrt(sum(zsq) / N_JOINTS)
+
+    def _withdraw(self, t: float, zsq: list[float]) -> bool:
+        """Judge a form call on probation on this sample's squared scores ``zsq`` (6,): True
+        when it is withdrawn here (the scale before it restored)."""
+        call, cfg = self._form_call, self.config
+        if t > call.until:
+            self._form_call = None
+            return False
+        old = [z * v * w for z, v, w in zip(zsq, (self.scale.std ** 2).tolist(), call.inv_var)]
+        peak = max(old)
+        joint = self._joint_score(old, peak)
+        call.joint_held = call.joint_held + 1 if joint > cfg.joint_exit_sigma else 0
+        if (self.contact.in_contact or peak >= cfg.exit_sigma ** 2
+                or call.joint_held >= cfg.joint_samples):
+            call.below_since = None
+            return False
+        if call.below_since is None:
+            call.below_since = t
+        if t - call.below_since < cfg.exit_s:
+            return False
+        self.scale.restore(call.snapshot)
+        self._form_call = None
+        self.withdrawn += 1
+        return True

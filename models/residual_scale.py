@@ -26,6 +26,7 @@ samples (fading factor ``1 - (1 - alpha)^k``: the same exponential memory).
 from __future__ import annotations
 
 import bisect
+import copy
 import math
 from typing import TYPE_CHECKING
 
@@ -230,6 +231,19 @@ class ResidualScale:
             rms = math.sqrt(float(msq[j]))
             self._restart(j, float(msq[j]), self.config.max_growth * max(rms, self.floor[j]))
         self._refresh()
+
+    def snapshot(self) -> dict:
+        """The learnt level (scale, training scale, their bounds and what is summed toward
+        them; not the reversal spread), for :meth:`restore`."""
+        return copy.deepcopy({k: getattr(self, k) for k in self._LEVEL})
+
+    def restore(self, snapshot: dict) -> None:
+        """Go back to a level taken by :meth:`snapshot` (the reversal spread goes on)."""
+        for k, v in copy.deepcopy(snapshot).items():
+            setattr(self, k, v)
+
+    _LEVEL = ("_msq", "_msq_train", "_cap", "_cap_train", "_acc", "_n_acc", "std", "_inv_var",
+              "_inv_var_train")
 
     def _restart(self, j: int, mean_square: float, cap: float) -> None:
         """Joint ``j``'s scale and training scale start afresh at ``mean_square``, bound

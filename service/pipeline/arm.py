@@ -270,7 +270,8 @@ class ArmPipeline:
 
     def _gate_events(self, t: float, decision: GateDecision, events: list[Event]) -> None:
         """A set-up change the gate found (adaptation gets eager, as after a drift: the drift
-        detector, fed free samples only, saw none of it) or a re-calibration, as events."""
+        detector, fed free samples only, saw none of it), one it withdrew, or a
+        re-calibration, as events."""
         if decision.setup_change:
             self._eager(t)
             events.append(Event(t, EventKind.GATE_SETUP_CHANGE, {
@@ -279,6 +280,9 @@ class ArmPipeline:
         elif decision.recalibrated:
             events.append(Event(t, EventKind.GATE_RECALIBRATED, {
                 "arm": self.arm, "max_contact_s": self.config.gate.max_contact_s}))
+        elif decision.setup_withdrawn:
+            events.append(Event(t, EventKind.GATE_SETUP_WITHDRAWN, {
+                "arm": self.arm, "form_withdraw_s": self.config.gate.form_withdraw_s}))
 
     def _drift(self, t: float, residual: np.ndarray, events: list[Event]) -> None:
         """Feed a free sample's residual to the drift detector; a detection makes the

@@ -24,6 +24,7 @@ class EventKind(StrEnum):
     CONTACT_START = "contact_start"
     CONTACT_END = "contact_end"
     GATE_SETUP_CHANGE = "gate_setup_change"
+    GATE_SETUP_WITHDRAWN = "gate_setup_withdrawn"
     GATE_RECALIBRATED = "gate_recalibrated"
     DRIFT = "drift"
     SETUP_CHANGE = "setup_change"

@@ -112,3 +112,66 @@ def test_a_contact_s_tail_is_not_judged_on_its_form():
     out = run(FreeMotionGate(cfg, WRENCH.kinematics), q, r, WRENCH.wrench_batch(q, r))
     assert not out[CHANGE + 100].free
     assert not any(d.setup_change for d in out[:CHANGE + int(cfg.setup_contact_s * RATE)])
+
+
+def called_on_form(until_s: float, cfg: GateConfig):
+    """A residual no tip force makes from CHANGE until ``until_s`` [s] after it, then free
+    motion again: (decisions, gate, the scale just before the call)."""
+    q, r, _ = session("setup")
+    end = CHANGE + int(until_s * RATE)
+    r[end:] = np.random.default_rng(7).normal(0.0, 1.0, (N - end, 6)) * STD
+    gate = FreeMotionGate(cfg, WRENCH.kinematics)
+    w = WRENCH.wrench_batch(q, r)
+    out, before = [], None
+    for i in range(N):
+        std = gate.scale.std.copy()
+        out.append(gate.update(i, i / RATE, r[i], None, w[i], q[i]))
+        if out[-1].setup_change:
+            before = std
+    return out, gate, before
+
+
+def test_a_form_call_whose_residual_ends_soon_after_is_withdrawn_and_the_scale_comes_back():
+    """Taken for a set-up change on its form, then gone within ``form_withdraw_s``: on the
+    scale before the call the residual is free motion's again, so it was a contact."""
+    cfg = GateConfig(warmup_samples=1000)
+    out, gate, before = called_on_form(3.0, cfg)
+    k = next(i for i, d in enumerate(out) if d.setup_change)
+    (back,) = [i for i, d in enumerate(out) if d.setup_withdrawn]
+    end = CHANGE + int(3.0 * RATE)
+    assert k < end <= back <= end + (cfg.exit_s + 0.5) * RATE
+    np.testing.assert_allclose(gate.scale.std, before, rtol=0.05)
+    assert gate.withdrawn == 1 and gate.setup_changes == 1
+
+    kept, kept_gate, _ = called_on_form(3.0, GateConfig(warmup_samples=1000, form_withdraw_s=0))
+    assert not any(d.setup_withdrawn for d in kept) and kept_gate.withdrawn == 0
+    assert np.all(kept_gate.scale.std > 1.5 * before)          # still the widened scale
+
+
+def test_a_lasting_residual_called_on_its_form_is_not_withdrawn():
+    cfg = GateConfig(warmup_samples=1000)
+    gate = FreeMotionGate(cfg, WRENCH.kinematics)
+    out = run(gate, *session("setup"))
+    assert any(d.setup_change for d in out)
+    assert not any(d.setup_withdrawn for d in out) and gate.withdrawn == 0
+
+
+def test_a_form_call_made_while_the_contact_s_end_was_pending_stands():
+    """A residual no tip force makes, on and off (a set-up change swinging with the pose is
+    quiet at times): a call made just as it went quiet, the contact's end pending, is not
+    withdrawn when the residual, back for 1.4 s, goes quiet again."""
+    cfg = GateConfig(warmup_samples=1000)
+    q, r, _ = session("setup")
+    quiet = np.random.default_rng(9).normal(0.0, 1.0, (N, 6)) * STD
+    off = np.zeros(N, bool)
+    for a, b in ((1.9, 3.0), (5.0, 5.6), (7.0, 25.0)):       # [s] after CHANGE
+        off[CHANGE + int(a * RATE):CHANGE + int(b * RATE)] = True
+    r[off] = quiet[off]
+    gate = FreeMotionGate(cfg, WRENCH.kinematics)
+    calls = []
+    for i, w in enumerate(WRENCH.wrench_batch(q, r)):
+        if gate.update(i, i / RATE, r[i], None, w, q[i]).setup_change:
+            calls.append((i, gate.contact.exiting))
+    assert [e for _, e in calls] == [True]
+    assert CHANGE + 5.0 * RATE < calls[0][0] < CHANGE + 5.6 * RATE
+    assert gate.withdrawn == 0

@@ -346,3 +346,33 @@ def test_setup_change_makes_an_event_reaches_the_adapter_and_refuses_bad_times(s
     frozen = ArmPipeline("PSM1", seal, PipelineConfig(policy=PolicyConfig(name="frozen")))
     frozen.process(msg(trocar, 0))
     assert frozen.setup_change(None)[0].detail["carry_over"] is False
+
+
+def test_a_form_call_on_a_residual_that_ends_soon_after_is_withdrawn_with_an_event(seal):
+    """Wrist torques no tip force makes, swinging with the pose, from 17 s: the gate takes
+    them for a set-up change on their form. Where they stop 1.5 s later it withdraws that
+    call (``gate_setup_withdrawn``); where they last, or with ``form_withdraw_s`` = 0, not."""
+    from wrenchd.models.series import JointStates, Session
+    from wrenchd.service.replay.loop import replay
+
+    js = run_scenario("free-space-seal", 26.0, 3).joint_states
+
+    def run(end_s: float, withdraw_s: float = 5.0) -> list[tuple[float, str]]:
+        effort = js.effort.copy()
+        m = (js.t >= 17.0) & (js.t < end_s)
+        q = js.position[m]
+        effort[m, 3:] += 0.03 * np.sin(q[:, 3:] * [3.0, 4.0, 5.0]
+                                       + q[:, :3] * [2.0, 3.0, 20.0] + 1.0)
+        session = Session(JointStates(js.t, js.position, js.velocity, effort))
+        config = PipelineConfig(calibration_s=10.0)
+        config = config.model_copy(update={"gate": config.gate.model_copy(
+            update={"form_withdraw_s": withdraw_s})})
+        result = replay(session, seal, config, policy="frozen")    # the gate alone judges
+        return [(e.t, e.kind) for e in result.events
+                if e.kind in ("gate_setup_change", "gate_setup_withdrawn")]
+
+    called, withdrawn = run(21.5)
+    assert called[1] == "gate_setup_change" and 17.0 < called[0] < 21.5
+    assert withdrawn[1] == "gate_setup_withdrawn" and 21.5 < withdrawn[0] < 23.0
+    assert [k for _, k in run(21.5, withdraw_s=0.0)] == ["gate_setup_change"]
+    assert [k for _, k in run(26.0)] == ["gate_setup_change"]
