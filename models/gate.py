@@ -123,6 +123,15 @@ class GateConfig(BaseModel):
                     "contact, now ended, and that scale comes back (a set-up change leaves the "
                     "residual over it); a call made while the contact's end was pending stands "
                     "[s]; 0: never")
+    drift_caution_s: float = Field(
+        default=3.0, ge=0.0,
+        description="after the drift detector fires (the free residual has grown: the model "
+                    "is wrong for the set-up until adaptation catches up), for this long a "
+                    "contact enters only over its enter bounds times drift_caution_factor; "
+                    "scale, exits and training as before [s]; 0: never")
+    drift_caution_factor: float = Field(
+        default=1.25, ge=1.0,
+        description="how much higher the enter bounds are for drift_caution_s after a drift")
     weak_contact_s: float = Field(
         default=0.3, ge=0.0,
         description="with the arm's kinematics, free samples whose residual a tip force of "
@@ -299,6 +308,7 @@ class FreeMotionGate:
         self.contact = self._hysteresis()
         self._probation_until = -math.inf      # nothing trains before this
         self._form_call: _FormCall | None = None
+        self.caution_until = -math.inf         # higher enter bounds before this (a drift)
         self.withdrawn = 0                     # set-up changes called on form, withdrawn
 
     def seed(self, std: np.ndarray) -> None:
@@ -378,6 +388,12 @@ class FreeMotionGate:
         held now, or begun soon after, is judged for a set-up change soon."""
         self.contact.announce(t)
 
+    def drifted(self, t: float) -> None:
+        """The drift detector fired at ``t`` [s]: for ``drift_caution_s`` a contact enters
+        only over the enter bounds times ``drift_caution_factor`` (the free residual has
+        grown past the scale, which learns it over tens of seconds)."""
+        self.caution_until = t + self.config.drift_caution_s
+
     def settle(self, t: float) -> None:
         """This gate starts judging at time ``t`` [s] (its warm-up is over, or it takes
         over from another judge): nothing is trainable before ``t + exit_s``."""
@@ -415,7 +431,12 @@ class FreeMotionGate:
                 and scale.reversal is not None):
             held = scale.reversal.reversed_within(t, cfg.reversal_hold_s)
             enter_score = math.sqrt(max((z for z, h in zip(zsq, held) if not h), default=0.0))
-        if not contact.in_contact and not contact.enter(index, t, enter_score, joint):
+        if t < self.caution_until:                   # after a drift: higher enter bounds
+            k = cfg.drift_caution_factor
+            entering = contact.in_contact or contact.enter(index, t, enter_score / k, joint / k)
+        else:
+            entering = contact.in_contact or contact.enter(index, t, enter_score, joint)
+        if not entering:
             if score < cfg.learn_sigma:
                 scale.learn(steady, zsq)
             # training is judged on the plain scale (not widened at reversals)

@@ -291,6 +291,7 @@ class ArmPipeline:
             self.counters.drifts += 1
             events.append(Event(t, EventKind.DRIFT, {"arm": self.arm,
                                                      "level": self.drift.level(residual)}))
+            self.gate.drifted(t)
             self._eager(t)
 
     def _eager(self, t: float) -> None:

@@ -260,3 +260,26 @@ def test_a_prior_keeps_the_warm_up_scale_within_one_and_max_growth_times_it():
         assert not np.allclose(free.bounds()[1], gate.bounds()[1], rtol=0.3)
     with pytest.raises(DataError):
         FreeMotionGate(cfg).reset(prior=np.full(5, 0.1))
+
+
+@pytest.mark.parametrize("joints", [[2], [0, 1, 2, 3, 4, 5]])
+def test_after_a_drift_a_contact_must_clear_higher_enter_bounds_for_drift_caution_s(joints):
+    """A push 1.15x the enter bounds (peak score, or the joint score on every joint) enters
+    before a drift and after ``drift_caution_s``, not within it (bounds 1.25x higher)."""
+    cfg = GateConfig(warmup_samples=500)
+    gate = FreeMotionGate(cfg)
+    run(gate, noise(1000))
+    bound = cfg.enter_sigma if len(joints) == 1 else cfg.joint_sigma
+    push = np.zeros(6)
+    push[joints] = 1.15 * bound * gate.scale.std[joints]
+
+    def entered(start: int) -> bool:
+        out = [gate.update(i, i / RATE, push) for i in range(start, start + 60)]
+        for i in range(start + 60, start + 400):          # free again, the contact over
+            gate.update(i, i / RATE, np.zeros(6))
+        return any(not d.free for d in out)
+
+    assert entered(1000)
+    gate.drifted(2000 / RATE)
+    assert not entered(2000)                               # within drift_caution_s
+    assert entered(2000 + int(cfg.drift_caution_s * RATE) + 10)

@@ -376,3 +376,19 @@ def test_a_form_call_on_a_residual_that_ends_soon_after_is_withdrawn_with_an_eve
     assert withdrawn[1] == "gate_setup_withdrawn" and 21.5 < withdrawn[0] < 23.0
     assert [k for _, k in run(21.5, withdraw_s=0.0)] == ["gate_setup_change"]
     assert [k for _, k in run(26.0)] == ["gate_setup_change"]
+
+
+def test_a_drift_raises_the_gate_s_enter_bounds_for_a_while(seal):
+    """Free motion whose residual grows by 0.3 N m on joint 1 from 17 s (under the gate's
+    bounds, so free): the drift detector fires, and the gate enters contacts only over
+    higher bounds for ``gate.drift_caution_s`` from then."""
+    js = run_scenario("free-space-seal", 30.0, 3).joint_states
+    config = PipelineConfig(calibration_s=10.0, policy=PolicyConfig(name="frozen"))
+    p = ArmPipeline("PSM1", seal, config)
+    drifts = []
+    for i in range(len(js.t)):
+        effort = js.effort[i] + (0.3 * np.eye(6)[0] if js.t[i] >= 17.0 else 0.0)
+        _, events = p.process(msg(js, i, effort=effort))
+        drifts += [e.t for e in events if e.kind == "drift"]
+    assert len(drifts) == 1 and 17.0 < drifts[0] < 25.0
+    assert p.gate.caution_until == pytest.approx(drifts[0] + config.gate.drift_caution_s)
