@@ -431,12 +431,9 @@ class FreeMotionGate:
                 and scale.reversal is not None):
             held = scale.reversal.reversed_within(t, cfg.reversal_hold_s)
             enter_score = math.sqrt(max((z for z, h in zip(zsq, held) if not h), default=0.0))
-        if t < self.caution_until:                   # after a drift: higher enter bounds
-            k = cfg.drift_caution_factor
-            entering = contact.in_contact or contact.enter(index, t, enter_score / k, joint / k)
-        else:
-            entering = contact.in_contact or contact.enter(index, t, enter_score, joint)
-        if not entering:
+        # after a drift, higher enter bounds (x / 1.0 is x exactly)
+        k = cfg.drift_caution_factor if t < self.caution_until else 1.0
+        if not contact.in_contact and not contact.enter(index, t, enter_score / k, joint / k):
             if score < cfg.learn_sigma:
                 scale.learn(steady, zsq)
             # training is judged on the plain scale (not widened at reversals)
