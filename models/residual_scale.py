@@ -233,17 +233,19 @@ class ResidualScale:
         self._refresh()
 
     def snapshot(self) -> dict:
-        """The learnt level (scale, training scale, their bounds and what is summed toward
-        them; not the reversal spread), for :meth:`restore`."""
+        """The learnt level of a calibrated scale (the statistics of the scale and the
+        training scale, their bounds and what is summed toward them; not the reversal
+        spread), for :meth:`restore`."""
         return copy.deepcopy({k: getattr(self, k) for k in self._LEVEL})
 
     def restore(self, snapshot: dict) -> None:
-        """Go back to a level taken by :meth:`snapshot` (the reversal spread goes on)."""
-        for k, v in copy.deepcopy(snapshot).items():
+        """Go back to a level taken by :meth:`snapshot` (the reversal spread goes on); the
+        scales follow from it."""
+        for k, v in snapshot.items():
             setattr(self, k, v)
+        self._refresh()
 
-    _LEVEL = ("_msq", "_msq_train", "_cap", "_cap_train", "_acc", "_n_acc", "std", "_inv_var",
-              "_inv_var_train")
+    _LEVEL = ("_msq", "_msq_train", "_cap", "_cap_train", "_acc", "_n_acc")
 
     def _restart(self, j: int, mean_square: float, cap: float) -> None:
         """Joint ``j``'s scale and training scale start afresh at ``mean_square``, bound
