@@ -175,9 +175,28 @@ class RigidBodyFrictionModel:
     def predict(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray,
                 rigid: RigidBodyModel | None = None,
                 presliding: np.ndarray | None = None) -> np.ndarray:
-        """Joint torques (N, 6) [N m; N] (``presliding`` as in :meth:`columns`)."""
+        """Joint torques (N, 6) [N m; N] (``presliding`` as in :meth:`columns`): the columns
+        times the coefficients, without building the columns past the rigid body's (the
+        others are diagonal: each joint's own value times its coefficient)."""
         rigid = rigid if rigid is not None else RigidBodyModel()
-        return self.columns(rigid, q, dq, ddq, self.config, presliding) @ self.coefficients
+        config, coef = self.config, self.coefficients
+        y = rigid.regressor(q, dq, ddq)
+        n = y.shape[0]
+        q, dq, ddq = (np.asarray(a, dtype=np.float64).reshape(n, N_JOINTS) for a in (q, dq, ddq))
+        per_joint = [ddq, coulomb_shape(dq, config.coulomb_velocity), dq, None]
+        if config.spring:
+            per_joint.append(q)
+        if config.hysteresis_width is not None:
+            p = (self.presliding(q, config) if presliding is None
+                 else np.asarray(presliding, dtype=np.float64))
+            if p.shape != q.shape:
+                raise DataError(f"presliding must have shape {q.shape}, got {p.shape}")
+            per_joint.append(p)
+        out = y @ coef[:N_INERTIAL]
+        for k, values in enumerate(per_joint):
+            c = coef[N_INERTIAL + k * N_JOINTS:N_INERTIAL + (k + 1) * N_JOINTS]
+            out += c if values is None else values * c          # None: the offset's ones
+        return out
 
     def to_dict(self) -> dict:
         """JSON-ready parameters (:meth:`from_dict` reads them back)."""

@@ -53,6 +53,27 @@ def test_fit_reproduces_torques_the_columns_can_express():
     assert RigidBodyFrictionModel.n_columns(PLAIN_LEAST_SQUARES) == 84
 
 
+def test_predict_is_the_columns_times_the_coefficients():
+    """predict builds only the rigid body's columns; the friction columns it adds joint by
+    joint give the full regressor's torques, with the presliding column given or not."""
+    q, dq, ddq = motion(seconds=2.0, seed=3)
+    rigid = RigidBodyModel()
+    rng = np.random.default_rng(2)
+    for config in (LeastSquaresConfig(hysteresis_width=(0.01,) * 6), PLAIN_LEAST_SQUARES):
+        model = RigidBodyFrictionModel(rng.normal(size=RigidBodyFrictionModel.n_columns(config)),
+                                       1, config)
+        full = RigidBodyFrictionModel.columns(rigid, q, dq, ddq, config) @ model.coefficients
+        np.testing.assert_allclose(model.predict(q, dq, ddq, rigid), full, rtol=1e-12,
+                                   atol=1e-12 * np.abs(full).max())
+        p = RigidBodyFrictionModel.presliding(q, config)
+        if p is not None:
+            shifted = p * 0.5
+            full = (RigidBodyFrictionModel.columns(rigid, q, dq, ddq, config, shifted)
+                    @ model.coefficients)
+            np.testing.assert_allclose(model.predict(q, dq, ddq, rigid, shifted), full,
+                                       rtol=1e-12, atol=1e-12 * np.abs(full).max())
+
+
 def test_bad_parameter_sets_are_refused():
     d = RigidBodyFrictionModel(np.zeros(90), 1).to_dict()
     d["coefficients"] = d["coefficients"][:-1]
