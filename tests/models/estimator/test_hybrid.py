@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 
 import numpy as np
 import pytest
 from wrenchd.models.errors import ConfigError, DataError
+from wrenchd.models.estimator import compiled
+from wrenchd.models.estimator import coverage as coverage_module
 from wrenchd.models.estimator.coverage import Coverage, CoverageConfig, smoothstep
 from wrenchd.models.estimator.estimator import TwoStepEstimator
 from wrenchd.models.estimator.hybrid import (
@@ -235,6 +238,21 @@ def test_coverage_weight():
     assert smoothstep(np.array([-1.0, 0.5, 2.0])).tolist() == [0.0, 0.5, 1.0]
     with pytest.raises(ValueError):
         CoverageConfig(inner_distance=1.0, outer_distance=0.5)
+
+
+def test_coverage_of_a_few_rows_is_the_tree_s_nearest_distance():
+    """A streamed row is measured against every point, a batch searched in the tree: the same
+    distances either way, near the points and far from them."""
+    rng = np.random.default_rng(4)
+    cov = Coverage.fit([rng.normal(size=(3000, 18))], CoverageConfig(acceleration_weight=0.3))
+    probe = np.concatenate([cov.points[:40] * cov.scale + cov.mean
+                            + rng.normal(scale=0.05, size=(40, 18)),
+                            rng.normal(scale=3.0, size=(40, 18))])
+    searched = cov.distance(probe)                            # 80 rows: the tree
+    assert len(probe) > coverage_module.BRUTE_ROWS
+    one_by_one = np.concatenate([cov.distance(row[None]) for row in probe])
+    np.testing.assert_allclose(one_by_one, searched, rtol=1e-9, atol=1e-9)
+    assert searched[:40].max() < 0.5 < searched[40:].min()   # both regimes were probed
 
 
 def test_coverage_with_accelerations_weighs_them_and_keeps_old_rows():
