@@ -125,6 +125,30 @@ def finetune_kernels() -> dict[str, Callable] | None:
     return {name: getattr(ck, name) for name in FINETUNE_KERNELS}
 
 
+#: the hybrid step 1's streaming kernels (models/estimator/hybrid.py)
+HYBRID_KERNELS = ("hybrid_motion", "hybrid_combine")
+
+
+def hybrid_kernels() -> dict[str, Callable] | None:
+    """The hybrid step 1's streaming kernels (:data:`HYBRID_KERNELS`), each called once on one
+    stream so that it is compiled or read from numba's cache now; None where numba is
+    missing, switched off or fails here (NumPy serves)."""
+    if _kernels() is None:
+        return None
+    from wrenchd.models.estimator import compiled_kernels as ck
+
+    row, one = np.zeros((1, 6)), np.ones(6)
+    try:
+        ck.hybrid_motion(row, row, np.zeros((1, 2, 6)), np.zeros(1, dtype=bool),
+                         np.zeros((6, 2)), row, one)
+        ck.hybrid_combine(row, row, row, row, row, np.zeros((6, 6)), 1.0, True, True, row,
+                          np.zeros(1), 0.5, 1.0, -one, one, 1.0)
+    except Exception as exc:  # noqa: BLE001 - the NumPy kernels serve instead
+        warnings.warn(f"compiled kernels unavailable, NumPy serves: {exc}", RuntimeWarning)
+        return None
+    return {name: getattr(ck, name) for name in HYBRID_KERNELS}
+
+
 def _import_kernels(numba):
     """The kernels' module; its functions cache their machine code next to it or in the
     user's cache, and where neither is writable (a hardened service: a read-only system, no

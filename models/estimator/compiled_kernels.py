@@ -214,3 +214,81 @@ def adam_update(flat, g, m, v, weight_decay, b1, b2, gain1, gain2, step_size, ro
         m[i] = mi
         v[i] = vi
         flat[i] = flat[i] - (mi / (np.sqrt(vi) / root_bc2 + eps)) * step_size
+
+
+# The hybrid step 1's streaming step (models/estimator/hybrid.py), in float64 without
+# fastmath: the NumPy path's operations element by element, in its order where it sums
+# (the acceleration filter's taps may round otherwise: ~1e-16 relative).
+@exact
+def hybrid_motion(q, v, history, started, acc_weights, follower, width):
+    """One sample of B streams: the causal acceleration filter and the play operator.
+
+    q, v (B, 6) positions and velocities; history (B, taps, 6) the velocities, newest first;
+    started (B,) whether a stream has a history and a follower (else it starts at this
+    sample); acc_weights (6, taps); follower (B, 6); width (6,) the play widths (empty: no
+    play). Returns the accelerations (B, 6), the new history, the play outputs (B, 6)
+    (zeros without play) and the new followers: ``z = clip(follower, q - w, q + w)`` (``q``
+    where not started), outputs ``(q - z) / w``."""
+    streams, taps, joints = history.shape
+    new = np.empty_like(history)
+    acc = np.empty((streams, joints))
+    out = np.zeros((streams, joints))
+    new_follower = follower.copy()
+    play = width.shape[0] > 0
+    for s in range(streams):
+        for j in range(joints):
+            new[s, 0, j] = v[s, j]
+            for i in range(1, taps):
+                new[s, i, j] = history[s, i - 1, j] if started[s] else v[s, j]
+            a = 0.0
+            for i in range(taps):
+                a += new[s, i, j] * acc_weights[j, i]
+            acc[s, j] = a
+            if play:
+                z = q[s, j]
+                if started[s]:
+                    z = min(max(follower[s, j], q[s, j] - width[j]), q[s, j] + width[j])
+                new_follower[s, j] = z
+                out[s, j] = (q[s, j] - z) / width[j]
+    return acc, new, out, new_follower
+
+
+@exact
+def hybrid_combine(rigid, q, dq, acc, presliding, friction, coulomb_v0, spring, play,
+                   residual, distance, inner, outer, low, high, margin):
+    """Physics plus trusted residual (B, 6): ``rigid`` the rigid body's torques (B, 6);
+    ``friction`` (K, 6) the diagonal columns' coefficients in their order (armature,
+    Coulomb: tanh(dq / coulomb_v0), or sign(dq) where coulomb_v0 <= 0, viscous, offset
+    [, spring] [, play]); ``residual`` (B, 6) the net's torques, ``distance`` (B,) to the
+    coverage with its ``inner`` and ``outer`` bounds; ``low``, ``high`` (6,) the residual's
+    range, its trust falling over ``margin`` times its width (margin <= 0: no bound)."""
+    streams, joints = q.shape
+    y = np.empty((streams, joints))
+    for s in range(streams):
+        x = min(max((outer - distance[s]) / (outer - inner), 0.0), 1.0)
+        w = x * x * (3.0 - 2.0 * x)
+        if margin > 0.0:
+            worst = 0.0
+            for j in range(joints):
+                r = residual[s, j]
+                o = max(max(low[j] - r, r - high[j]), 0.0) / max(high[j] - low[j], 1e-12)
+                worst = max(worst, o)
+            x = min(max(worst / margin, 0.0), 1.0)
+            bound = 1.0 - x * x * (3.0 - 2.0 * x)
+            w = w * (1.0 - (1.0 - w) * (1.0 - bound))
+        for j in range(joints):
+            t = rigid[s, j] + acc[s, j] * friction[0, j]
+            if coulomb_v0 > 0.0:
+                t += np.tanh(dq[s, j] / coulomb_v0) * friction[1, j]
+            else:
+                t += np.sign(dq[s, j]) * friction[1, j]
+            t += dq[s, j] * friction[2, j]
+            t += friction[3, j]
+            k = 4
+            if spring:
+                t += q[s, j] * friction[k, j]
+                k += 1
+            if play:
+                t += presliding[s, j] * friction[k, j]
+            y[s, j] = t + w * residual[s, j]
+    return y

@@ -39,6 +39,7 @@ from typing import Any, Callable, ClassVar
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 from wrenchd.models.errors import ConfigError, DataError
+from wrenchd.models.estimator.compiled import DEFERRED, compile_now, hybrid_kernels
 from wrenchd.models.estimator.coverage import Coverage, CoverageConfig, smoothstep
 from wrenchd.models.estimator.features import N_FEATURES, segments
 from wrenchd.models.physics.causal_acceleration import (
@@ -50,6 +51,7 @@ from wrenchd.models.physics.causal_acceleration import (
 from wrenchd.models.physics.dynamics import RigidBodyModel
 from wrenchd.models.physics.hysteresis import play, play_step
 from wrenchd.models.physics.least_squares import (
+    N_INERTIAL,
     LeastSquaresConfig,
     RigidBodyFrictionModel,
     smoothed_acceleration,
@@ -185,15 +187,22 @@ class HybridStep1:
 
     def __post_init__(self) -> None:
         self._rigid = RigidBodyModel()
+        w = self.physics.config.hysteresis_width
+        self._width = None if w is None else np.array(w, dtype=np.float64)
+        self._compiled: Any = DEFERRED            # the streaming kernels, built on first use
+
+    def __getstate__(self) -> dict:
+        # the compiled kernels stay in their process: the receiver fetches its own
+        return {**self.__dict__, "_compiled": DEFERRED}
 
     # -- batch ---------------------------------------------------------------------------
     def _combine(self, x: np.ndarray, acc: np.ndarray,
                  presliding: np.ndarray | None) -> HybridParts:
         q, dq = x[:, :N_JOINTS], x[:, N_JOINTS:]
         phys = self.physics.predict(q, dq, acc, self._rigid, presliding)
-        res = self.residual(np.concatenate([q, dq, acc], axis=1))
-        rows = x if self.coverage.width == N_FEATURES else np.concatenate([x, acc], axis=1)
-        weight = self.coverage.weight(rows)
+        with_acc = np.concatenate([x, acc], axis=1)                 # [q, dq, ddq_hat]
+        res = self.residual(with_acc)
+        weight = self.coverage.weight(x if self.coverage.width == N_FEATURES else with_acc)
         bound = self.residual.range_trust(res, self.config.residual_range_margin)
         if bound is not None:
             # the range decides only where the coverage doubts: w (1 - (1 - w)(1 - bound)),
@@ -239,34 +248,85 @@ class HybridStep1:
     # -- streaming -----------------------------------------------------------------------
     def kernel(self) -> HybridStep1:
         """The streaming kernel (``initial_state``, ``step``, ``run``): the model itself, whose
-        arrays are read-only after fitting."""
+        arrays are read-only after fitting; its compiled step is built now (numba's cache
+        read, or a compilation), not on the first sample, unless compilation is deferred
+        (:func:`~wrenchd.models.estimator.compiled.deferred_compilation`)."""
+        if self._compiled is DEFERRED and compile_now():
+            self._compiled = self._streaming_kernels()
         return self
 
     def initial_state(self, batch: int = 1) -> HybridState:
         """Fresh state of ``batch`` streams."""
         return (*self.acceleration.initial_state(batch), np.zeros((batch, N_JOINTS)))
 
-    def _widths(self) -> np.ndarray | None:
-        w = self.physics.config.hysteresis_width
-        return None if w is None else np.array(w)
-
     def step(self, x: np.ndarray, state: HybridState | None = None
              ) -> tuple[np.ndarray, HybridState]:
         """One sample: (12,) or (B, 12) rows -> (6,) or (B, 6) torques and the new state
-        (``state`` is not modified; None starts fresh streams)."""
+        (``state`` is not modified; None starts fresh streams). Compiled where numba is
+        installed (:meth:`_step_compiled`), else in NumPy; the two agree to float64
+        rounding."""
         x = np.asarray(x, dtype=np.float64)
         single = x.ndim == 1
         xb = _rows(x[None] if single else x)
         if state is None:
             state = self.initial_state(len(xb))
+        if self._compiled is DEFERRED:
+            self._compiled = self._streaming_kernels()
+        if self._compiled is not None:
+            y, state = self._step_compiled(xb, state)
+            return (y[0] if single else y), state
         history, started, follower = state
         acc, (history, new_started) = self.acceleration.step(xb[:, N_JOINTS:],
                                                              (history, started))
-        width, presliding = self._widths(), None
+        width, presliding = self._width, None
         if width is not None:
             presliding, follower = play_step(xb[:, :N_JOINTS], width, follower, started)
         y = self._combine(xb, acc, presliding).torque
         return (y[0] if single else y), (history, new_started, follower)
+
+    def _streaming_kernels(self) -> tuple | None:
+        """``(motion, combine, constants)`` of :meth:`_step_compiled`, or None: numba missing
+        or switched off, or an acceleration filter that reads ahead (it cannot stream; the
+        NumPy step says so)."""
+        kernels = hybrid_kernels() if not self.acceleration.lookahead else None
+        if kernels is None:
+            return None
+        phys, res = self.physics, self.residual
+        friction = phys.coefficients[N_INERTIAL:].reshape(-1, N_JOINTS).copy()
+        bounded = res.out_range is not None and self.config.residual_range_margin is not None
+        low, high = (res.out_range if bounded else np.zeros((2, N_JOINTS)))
+        cov = self.coverage.config
+        constants = (friction, float(phys.config.coulomb_velocity or 0.0), phys.config.spring,
+                     self._width is not None, cov.inner_distance, cov.outer_distance,
+                     np.ascontiguousarray(low, dtype=np.float64),
+                     np.ascontiguousarray(high, dtype=np.float64),
+                     float(self.config.residual_range_margin) if bounded else 0.0)
+        return (kernels["hybrid_motion"], kernels["hybrid_combine"],
+                phys.coefficients[:N_INERTIAL].copy(),
+                self._width if self._width is not None else np.zeros(0), constants)
+
+    def _step_compiled(self, xb: np.ndarray, state: HybridState
+                       ) -> tuple[np.ndarray, HybridState]:
+        """:meth:`step` of (B, 12) checked rows in two compiled calls (the acceleration filter
+        and the play operator; the friction, the trust and the sum) around the rigid body's
+        regressor, the residual net and the coverage's distances."""
+        motion, combine, theta, width, constants = self._compiled
+        history, started, follower = state
+        if history.shape[0] != len(xb) or follower.shape != (len(xb), N_JOINTS):
+            raise DataError(f"a state of {history.shape[0]} streams for {len(xb)} rows")
+        q = np.ascontiguousarray(xb[:, :N_JOINTS])
+        dq = np.ascontiguousarray(xb[:, N_JOINTS:])
+        acc, history, presliding, follower = motion(q, dq, history, started,
+                                                    self.acceleration.weights, follower, width)
+        rigid = self._rigid.regressor(q, dq, acc) @ theta
+        with_acc = np.concatenate([xb, acc], axis=1)                 # [q, dq, ddq_hat]
+        res = self.residual(with_acc)
+        distance = self.coverage.distance(xb if self.coverage.width == N_FEATURES
+                                          else with_acc)
+        friction, v0, spring, play_on, inner, outer, low, high, margin = constants
+        y = combine(rigid, q, dq, acc, presliding, friction, v0, spring, play_on, res,
+                    distance, inner, outer, low, high, margin)
+        return y, (history, np.ones_like(started), follower)
 
     def run(self, x: np.ndarray, state: HybridState) -> tuple[np.ndarray, HybridState]:
         """Consecutive samples of one stream: (T, 12) -> (T, 6) torques and the new state."""
@@ -274,7 +334,7 @@ class HybridStep1:
         history, started, follower = state
         acc, (history, new_started) = self.acceleration.run(xb[:, N_JOINTS:],
                                                             (history, started))
-        width, presliding = self._widths(), None
+        width, presliding = self._width, None
         if width is not None and len(xb):
             presliding, last = play(xb[:, :N_JOINTS], width,
                                     follower[0] if started[0] else None)

@@ -98,6 +98,34 @@ def test_streaming_matches_batch(trained):
     np.testing.assert_allclose(np.concatenate([a, b]), batch, rtol=0, atol=1e-10)
 
 
+def test_the_compiled_step_is_the_numpy_step(trained):
+    """Where numba is installed the streaming step runs compiled: the same torques as NumPy's
+    to float64 rounding, for one stream and two, with every trust regime (inside the
+    coverage, at its edge, outside it) and a fresh start in the middle."""
+    pytest.importorskip("numba")
+    near = trajectory(3.0, phase=0.2)
+    edge = trajectory(3.0, phase=0.2, scale=1.15)
+    x = np.concatenate([np.concatenate([s.position, s.velocity], 1) for s in (near, edge)])
+    weight = trained.parts(x).weight
+    assert weight.max() == 1.0 and weight.min() == 0.0 and ((weight > 0) & (weight < 1)).any()
+    fast, slow = copy.copy(trained), copy.copy(trained)
+    fast._compiled, slow._compiled = compiled.DEFERRED, None         # None: NumPy serves
+    for streams in (1, 2):
+        out = {}
+        for name, model in (("fast", fast), ("slow", slow)):
+            state, ys = None, []
+            for k in range(len(x)):
+                if k == len(near):
+                    state = None                                      # a fresh start
+                rows = np.stack([x[(k + 150 * b) % len(x)] for b in range(streams)])
+                y, state = model.step(rows, state)
+                ys.append(y)
+            out[name] = np.array(ys)
+        assert fast._compiled is not None
+        np.testing.assert_allclose(out["fast"], out["slow"], rtol=1e-12,
+                                   atol=1e-12 * np.abs(out["slow"]).max())
+
+
 def test_two_streams_step_independently(trained):
     one, two = trajectory(1.0), trajectory(1.0, phase=0.7)
     x1 = np.concatenate([one.position, one.velocity], 1)
