@@ -10,6 +10,7 @@ computation the service runs per sample.
 from __future__ import annotations
 
 import json
+import math
 import os
 import sys
 import time
@@ -64,7 +65,7 @@ def bench_inference(duration_s: float = 60.0, seed: int = 3, warmup: int = 500) 
 def run(kind: str, json_path: str | None, duration_s: float, arms: int = 1,
         rate_hz: float = 1000.0, pin: bool = False, realtime: int | str = "auto",
         recording: str | None = None, intake: str = "channel", pairs: int = 2,
-        stages: bool = False) -> int:
+        stages: bool = False, model: str = "seal") -> int:
     """Run the bench ``kind``, print its result as JSON (with its provenance) and write it to
     ``json_path`` too when given."""
     os.environ.setdefault("OMP_NUM_THREADS", "1")
@@ -72,7 +73,7 @@ def run(kind: str, json_path: str | None, duration_s: float, arms: int = 1,
     if kind == "inference":
         result = bench_inference(duration_s=duration_s)
     elif kind == "arm":
-        result = bench_arm_thread(duration_s=duration_s)
+        result = bench_arm_thread(duration_s=duration_s, model=model, recording=recording)
     elif kind in ("service", "soak", "floor"):
         from wrenchd.service.bench.daemon_latency import bench_service
 
@@ -111,12 +112,15 @@ def run(kind: str, json_path: str | None, duration_s: float, arms: int = 1,
 PACED_BLOCK = 500
 
 
-def bench_arm_thread(duration_s: float = 20.0) -> dict:
+def bench_arm_thread(duration_s: float = 20.0, model: str = "seal",
+                     recording: str | None = None) -> dict:
     """Per-sample cost of the daemon's work for one arm, without zenoh: decode the JSON joint
     state, run the pipeline (frozen: no adaptation rounds), encode the wrench, hand both log
     records to the log writer (``log``); and, apart (``log_writer``), the log writer
     process's work: format and write them to MCAP. Percentiles per stage [us], one ``trocar``
-    session at 200 Hz.
+    session at 200 Hz, or ``recording`` (a file ``wrenchd replay`` reads) played again until
+    it lasts ``duration_s``; step 1 ``model`` (a shipped name or a bundle directory, as the
+    daemon's ``[model] step1``).
 
     After a first block of ``PACED_BLOCK`` samples (warming up, counted in neither), the
     samples go in blocks of as many, every other one paced as the daemon sees them at 1 kHz
@@ -133,14 +137,22 @@ def bench_arm_thread(duration_s: float = 20.0) -> dict:
     from wrenchd.adapters.mcap_session import TOPIC_JOINT_STATES
     from wrenchd.adapters.messages import decode_joint_state, encode_joint_state, encode_wrench
     from wrenchd.adapters.sim.scenarios import run_scenario
-    from wrenchd.models.estimator.pretrained import load_pretrained
+    from wrenchd.service.pipeline.step1 import load_free_space
     from wrenchd.service.runtime.arm import estimate_payload
     from wrenchd.service.pipeline import ArmPipeline, PipelineConfig, PolicyConfig
 
-    js = run_scenario("trocar", duration_s, 1).joint_states
+    if recording is None:
+        js = run_scenario("trocar", duration_s, 1).joint_states
+    else:
+        from wrenchd.service.replay.source import load_session
+
+        once = load_session(recording).joint_states
+        span = float(once.t[-1] - once.t[0]) if len(once) > 1 else 0.0
+        times = max(1, math.ceil(duration_s / span)) if span > 0 else 1
+        js = load_session(f"concat:{recording}*{times}").joint_states
     payloads = [encode_joint_state("json", int(round(js.t[i] * 1e9)), js.names, js.position[i],
                                    js.velocity[i], js.effort[i]) for i in range(len(js))]
-    pipeline = ArmPipeline("PSM1", load_pretrained("seal"),
+    pipeline = ArmPipeline("PSM1", load_free_space(model),
                            PipelineConfig(policy=PolicyConfig(name="frozen")))
     # the daemon's own work per sample (decode, pipeline, wrench encode, hand-over to the log
     # writer); the log writer process's work (format, write) is timed apart: it runs elsewhere

@@ -30,7 +30,8 @@ def bench(args: argparse.Namespace) -> int:
     if args.duration is None:
         args.duration = DEFAULT_DURATION_S.get(args.kind, 60.0)
     return run(args.kind, args.json, args.duration, args.arms, args.rate, args.pin,
-               args.realtime, args.recording, args.intake, args.pairs, args.stages)
+               args.realtime, args.recording, args.intake, args.pairs, args.stages,
+               args.model)
 
 
 def register(sub) -> None:
@@ -47,7 +48,11 @@ def register(sub) -> None:
                         "replay throughput; fit: wrenchd fit from reading to a bundle")
     p.add_argument("--json", help="also write the result to this file")
     p.add_argument("--recording", help="fit: the recording to fit (default: --duration s of "
-                                       "the simulator's free-space scenario)")
+                                       "the simulator's free-space scenario); arm: the joint "
+                                       "states to run, played again to last --duration "
+                                       "(default: the simulator's trocar scenario)")
+    p.add_argument("--model", default="seal",
+                   help="arm: step 1, a shipped name or a bundle directory (default seal)")
     p.add_argument("--duration", type=float, default=None,
                    help="inference: session length [s] (60); replay: session length "
                         "[s] (600); service: measured [s] (20); ratio: each run [s] (90: "
