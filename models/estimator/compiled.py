@@ -142,7 +142,8 @@ def hybrid_kernels() -> dict[str, Callable] | None:
         ck.hybrid_motion(row, row, np.zeros((1, 2, 6)), np.zeros(1, dtype=bool),
                          np.zeros((6, 2)), row, one)
         ck.hybrid_combine(row, row, row, row, row, np.zeros((6, 6)), 1.0, True, True, row,
-                          np.zeros(1), 0.5, 1.0, -one, one, 1.0)
+                          np.zeros((1, 18)), np.zeros(18), np.ones(18), np.zeros((2, 18)),
+                          np.zeros(2), 0.5, 1.0, -one, one, 1.0)
     except Exception as exc:  # noqa: BLE001 - the NumPy kernels serve instead
         warnings.warn(f"compiled kernels unavailable, NumPy serves: {exc}", RuntimeWarning)
         return None

@@ -253,19 +253,42 @@ def hybrid_motion(q, v, history, started, acc_weights, follower, width):
     return acc, new, out, new_follower
 
 
+@jit
+def nearest_distance(row, mean, scale, points, norms):
+    """Distance of ``(row - mean) / scale`` to the nearest of ``points`` (M, D), whose
+    squared norms are ``norms`` (M,): ``|p|^2 - 2 p.z + |z|^2`` at its least (the
+    coverage's streamed form; fastmath: sums in any order, as a BLAS product's)."""
+    width = row.shape[0]
+    z = np.empty(width)
+    zz = 0.0
+    for k in range(width):
+        z[k] = (row[k] - mean[k]) / scale[k]
+        zz += z[k] * z[k]
+    best = np.inf
+    for p in range(points.shape[0]):
+        dot = 0.0
+        for k in range(width):
+            dot += points[p, k] * z[k]
+        best = min(best, norms[p] - 2.0 * dot)
+    return np.sqrt(max(best + zz, 0.0))
+
+
 @exact
 def hybrid_combine(rigid, q, dq, acc, presliding, friction, coulomb_v0, spring, play,
-                   residual, distance, inner, outer, low, high, margin):
+                   residual, rows, mean, scale, points, norms, inner, outer, low, high,
+                   margin):
     """Physics plus trusted residual (B, 6): ``rigid`` the rigid body's torques (B, 6);
     ``friction`` (K, 6) the diagonal columns' coefficients in their order (armature,
     Coulomb: tanh(dq / coulomb_v0), or sign(dq) where coulomb_v0 <= 0, viscous, offset
-    [, spring] [, play]); ``residual`` (B, 6) the net's torques, ``distance`` (B,) to the
-    coverage with its ``inner`` and ``outer`` bounds; ``low``, ``high`` (6,) the residual's
-    range, its trust falling over ``margin`` times its width (margin <= 0: no bound)."""
+    [, spring] [, play]); ``residual`` (B, 6) the net's torques, trusted by the distance of
+    ``rows`` (B, D) to the coverage (:func:`nearest_distance`) between its ``inner`` and
+    ``outer`` bounds; ``low``, ``high`` (6,) the residual's range, its trust falling over
+    ``margin`` times its width (margin <= 0: no bound)."""
     streams, joints = q.shape
     y = np.empty((streams, joints))
     for s in range(streams):
-        x = min(max((outer - distance[s]) / (outer - inner), 0.0), 1.0)
+        distance = nearest_distance(rows[s], mean, scale, points, norms)
+        x = min(max((outer - distance) / (outer - inner), 0.0), 1.0)
         w = x * x * (3.0 - 2.0 * x)
         if margin > 0.0:
             worst = 0.0

@@ -117,6 +117,11 @@ class Coverage:
         return cls((kept - mean) / scale, mean, scale, config)
 
     @property
+    def norms(self) -> np.ndarray:
+        """(M,) each point's squared norm (for distances computed against every point)."""
+        return self._norms
+
+    @property
     def width(self) -> int:
         """Columns of a row: 12 (``[q, dq]``) or 18 (``[q, dq, ddq]``)."""
         return int(self.points.shape[1])

@@ -318,14 +318,14 @@ class HybridStep1:
         dq = np.ascontiguousarray(xb[:, N_JOINTS:])
         acc, history, presliding, follower = motion(q, dq, history, started,
                                                     self.acceleration.weights, follower, width)
-        rigid = self._rigid.regressor(q, dq, acc) @ theta
+        rigid = self._rigid.rigid_torque(q, dq, acc, theta)
         with_acc = np.concatenate([xb, acc], axis=1)                 # [q, dq, ddq_hat]
         res = self.residual(with_acc)
-        distance = self.coverage.distance(xb if self.coverage.width == N_FEATURES
-                                          else with_acc)
+        cov = self.coverage
         friction, v0, spring, play_on, inner, outer, low, high, margin = constants
         y = combine(rigid, q, dq, acc, presliding, friction, v0, spring, play_on, res,
-                    distance, inner, outer, low, high, margin)
+                    xb if cov.width == N_FEATURES else with_acc, cov.mean, cov.scale,
+                    cov.points, cov.norms, inner, outer, low, high, margin)
         return y, (history, np.ones_like(started), follower)
 
     def run(self, x: np.ndarray, state: HybridState) -> tuple[np.ndarray, HybridState]:

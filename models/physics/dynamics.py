@@ -160,6 +160,17 @@ class RigidBodyModel:
             out[i] = pin.computeJointTorqueRegressor(self.model, self.data, q[i], dq[i], ddq[i])
         return out
 
+    def rigid_torque(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray,
+                     parameters: np.ndarray) -> np.ndarray:
+        """``regressor(q, dq, ddq) @ parameters`` (B, 6) of rows already checked (float64,
+        (B, 6), finite), without checking them again: a streamed sample's rigid body with
+        identified parameters (which need not be a physical body's, so not by RNEA)."""
+        model, data = self.model, self.data
+        out = np.empty((q.shape[0], N_JOINTS))
+        for i in range(q.shape[0]):
+            out[i] = pin.computeJointTorqueRegressor(model, data, q[i], dq[i], ddq[i]) @ parameters
+        return out
+
     def armature_torque(self, ddq: np.ndarray) -> np.ndarray:
         """Torque (N, 6) of the reflected motor inertia: ``armature * ddq``."""
         return _batch(ddq, "ddq") * self.model.armature
