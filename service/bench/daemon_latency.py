@@ -51,7 +51,8 @@ def _free_port() -> int:
 def _config(path: Path, endpoint: str, arms: list[str], log_dir: Path,
             adaptation: bool = True, log: bool = True,
             pin: tuple[list[int], list[int]] | None = None,
-            realtime: int | str = "auto", intake: str = "channel") -> None:
+            realtime: int | str = "auto", intake: str = "channel", model: str = "seal"
+            ) -> None:
     lines = ['robot = "external"', "[cpus]", f"realtime_priority = {json.dumps(realtime)}"]
     if pin is not None:
         lines += [f"daemon = {pin[0]}", f"worker = {pin[1]}"]
@@ -59,7 +60,7 @@ def _config(path: Path, endpoint: str, arms: list[str], log_dir: Path,
              f'directory = "{log_dir}"', f"enabled = {str(log).lower()}", "[ring]",
              "capacity = 4000", f'intake = "{intake}"']
     for arm in arms:
-        lines += ["[[arms]]", f'name = "{arm}"', 'encoding = "json"',
+        lines += ["[[arms]]", f'name = "{arm}"', 'encoding = "json"', f"model = {json.dumps(model)}",
                   "[arms.pipeline.adaptation]", f"enabled = {str(adaptation).lower()}"]
     path.write_text("\n".join(lines) + "\n")
 
@@ -190,7 +191,8 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
                   warmup_s: float = 3.0, adaptation: bool = True,
                   log: bool = True, floor: bool = False, pin: bool = False,
                   realtime: int | str = "auto", intake: str = "channel",
-                  split_s: float | None = None, stages: bool = False) -> dict[str, Any]:
+                  split_s: float | None = None, stages: bool = False, model: str = "seal",
+                  recording: str | None = None) -> dict[str, Any]:
     """Run the benchmark; returns the result dictionary.
 
     Also samples the daemon's resident memory (with its worker) once a second: the soak run
@@ -210,7 +212,10 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
     latency and CPU figures of the samples sent before ``split_s`` (after the warm-up; the
     daemon's calibration minute when it is ``calibration_s``) and of those after it. With
     ``stages`` (the daemon only) the result also has ``stages``: the estimation thread's CPU
-    time per stage over the whole run, warm-up included (:mod:`wrenchd.service.bench.stages`)."""
+    time per stage over the whole run, warm-up included (:mod:`wrenchd.service.bench.stages`).
+    ``model`` is every arm's step 1 (a shipped name or a bundle directory); ``recording`` (a
+    file ``wrenchd replay`` reads) is published in place of the simulator's ``trocar``
+    scenario, from its start again when it ends, at ``rate_hz`` (give its own rate)."""
     from wrenchd.adapters.sim.scenarios import run_scenario
     from wrenchd.adapters.sim.simulator import SimulatorConfig
 
@@ -218,12 +223,18 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
     total_s = warmup_s + duration_s
     # a long soak repeats one simulated minute (time keeps increasing)
     block_s = min(total_s, 60.0)
-    sim = run_scenario("trocar", block_s + 1.0, 11,
-                       config=SimulatorConfig(publish_rate_hz=rate_hz,
-                                              internal_rate_hz=max(1000.0, rate_hz)))
-    js = sim.joint_states
     n = int(total_s * rate_hz)
-    m = int(block_s * rate_hz)
+    if recording is None:
+        js = run_scenario("trocar", block_s + 1.0, 11,
+                          config=SimulatorConfig(publish_rate_hz=rate_hz,
+                                                 internal_rate_hz=max(1000.0, rate_hz))
+                          ).joint_states
+        m = int(block_s * rate_hz)
+    else:
+        from wrenchd.service.replay.source import load_session
+
+        js = load_session(recording).joint_states
+        m = len(js)
     stamps = [int(round(i * 1e9 / rate_hz)) for i in range(n)]
     payloads = [encode_joint_state("json", stamps[i], js.names, js.position[i % m],
                                    js.velocity[i % m], js.effort[i % m]) for i in range(n)]
@@ -236,8 +247,10 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
             raise RuntimeError("--pin needs at least two CPUs")
         placement = ([cpus[-1]], cpus[:-1])
         os.sched_setaffinity(0, placement[1])
+    if Path(model).exists():                  # a bundle: named from the daemon's workdir
+        model = str(Path(model).resolve())
     _config(workdir / "bench.toml", endpoint, arms, workdir / "logs", adaptation, log, placement,
-            realtime, intake)
+            realtime, intake, model)
     command = ([sys.executable, "-m", "wrenchd.service.bench.floor", "--listen", endpoint,
                 "--intake", intake, "--realtime", str(realtime), "--arms", *arms] if floor else
                [sys.executable, "-m", "wrenchd", "serve", "--config",

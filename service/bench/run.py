@@ -79,12 +79,14 @@ def run(kind: str, json_path: str | None, duration_s: float, arms: int = 1,
 
         result = bench_service(n_arms=arms, rate_hz=rate_hz, duration_s=duration_s,
                                floor=kind == "floor", pin=pin, realtime=realtime,
-                               intake=intake, stages=stages)
+                               intake=intake, stages=stages, model=model,
+                               recording=recording)
     elif kind == "ratio":
         from wrenchd.service.bench.ratio import bench_ratio
 
         result = bench_ratio(n_arms=arms, rate_hz=rate_hz, duration_s=duration_s, pairs=pairs,
-                             pin=pin, realtime=realtime, intake=intake,
+                             pin=pin, realtime=realtime, intake=intake, model=model,
+                             recording=recording,
                              log=lambda line: print(line, file=sys.stderr, flush=True))
     elif kind == "replay":
         from wrenchd.service.bench.replay import run_replay_bench

@@ -48,11 +48,13 @@ def register(sub) -> None:
                         "replay throughput; fit: wrenchd fit from reading to a bundle")
     p.add_argument("--json", help="also write the result to this file")
     p.add_argument("--recording", help="fit: the recording to fit (default: --duration s of "
-                                       "the simulator's free-space scenario); arm: the joint "
-                                       "states to run, played again to last --duration "
-                                       "(default: the simulator's trocar scenario)")
+                                       "the simulator's free-space scenario); arm, service, "
+                                       "soak, floor, ratio: the joint states to run, played "
+                                       "again from its start (default: the simulator's "
+                                       "trocar scenario; give --rate its own rate)")
     p.add_argument("--model", default="seal",
-                   help="arm: step 1, a shipped name or a bundle directory (default seal)")
+                   help="arm, service, soak, ratio: every arm's step 1, a shipped name or a "
+                        "bundle directory (default seal)")
     p.add_argument("--duration", type=float, default=None,
                    help="inference: session length [s] (60); replay: session length "
                         "[s] (600); service: measured [s] (20); ratio: each run [s] (90: "

@@ -2,8 +2,10 @@
 zenoh for a few seconds; every joint state gets its wrench and memory is sampled."""
 
 import math
+import tomllib
+from pathlib import Path
 
-from wrenchd.service.bench.daemon_latency import bench_service
+from wrenchd.service.bench.daemon_latency import _config, bench_service
 
 
 def test_short_soak_drops_nothing_and_reports_memory():
@@ -35,3 +37,17 @@ def test_stages_count_every_sample_of_every_arm():
     assert stages["intake"]["calls"] > 0 and stages["housekeeping"]["calls"] > 0
     for stage in stages.values():
         assert stage["total_s"] > 0.0 and stage["us_per_call"] > 0.0
+
+
+def test_a_bundle_served_on_a_real_recording(wpi_data, tmp_path):
+    """bench service --model BUNDLE --recording FILE: every arm's config names the bundle,
+    and the daemon serves it on the recording, played again from its start (here 4 s of a
+    30 s file at its own 200 Hz)."""
+    bundle = Path(__file__).resolve().parents[3] / "reports" / "real-robot" / "bundle"
+    _config(tmp_path / "bench.toml", "tcp/127.0.0.1:1", ["PSM1", "PSM2"], tmp_path,
+            model=str(bundle))
+    arms = tomllib.loads((tmp_path / "bench.toml").read_text())["arms"]
+    assert [a["model"] for a in arms] == [str(bundle)] * 2
+    r = bench_service(n_arms=1, rate_hz=200.0, duration_s=3.0, warmup_s=1.0,
+                      model=str(bundle), recording=str(wpi_data / "two.csv"))
+    assert r["dropped"] == 0 and r["per_arm"]["PSM1"]["received"] == 800
