@@ -58,6 +58,8 @@ from wrenchd.models.physics.least_squares import (
 )
 from wrenchd.models.series import N_JOINTS, JointStates
 
+#: :meth:`HybridStep1.run` steps a run of up to this many rows one by one (compiled)
+STREAMED_ROWS = 8
 FORMAT = "wrenchd-hybrid-step1"
 FORMAT_VERSION = 1
 #: The residual's trusted range: its training targets' quantiles this far in from each end
@@ -329,8 +331,20 @@ class HybridStep1:
         return y, (history, np.ones_like(started), follower)
 
     def run(self, x: np.ndarray, state: HybridState) -> tuple[np.ndarray, HybridState]:
-        """Consecutive samples of one stream: (T, 12) -> (T, 6) torques and the new state."""
+        """Consecutive samples of one stream: (T, 12) -> (T, 6) torques and the new state.
+        A run of up to :data:`STREAMED_ROWS` (a daemon's pass) is stepped row by row by the
+        compiled step where there is one; longer runs go through NumPy at once."""
         xb = _rows(x)
+        if len(xb) <= STREAMED_ROWS and self._compiled is not None and (
+                self._compiled is not DEFERRED or compile_now()):
+            if self._compiled is DEFERRED:
+                self._compiled = self._streaming_kernels()
+            if self._compiled is not None:
+                out = np.empty((len(xb), N_JOINTS))
+                for k in range(len(xb)):
+                    y, state = self._step_compiled(xb[k:k + 1], state)
+                    out[k] = y[0]
+                return out, state
         history, started, follower = state
         acc, (history, new_started) = self.acceleration.run(xb[:, N_JOINTS:],
                                                             (history, started))

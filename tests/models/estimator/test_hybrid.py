@@ -12,6 +12,7 @@ from wrenchd.models.estimator import compiled
 from wrenchd.models.estimator import coverage as coverage_module
 from wrenchd.models.estimator.coverage import Coverage, CoverageConfig, smoothstep
 from wrenchd.models.estimator.estimator import TwoStepEstimator
+from wrenchd.models.estimator import hybrid as hybrid_module
 from wrenchd.models.estimator.hybrid import (
     HYBRID_PHYSICS,
     HybridConfig,
@@ -124,6 +125,16 @@ def test_the_compiled_step_is_the_numpy_step(trained):
         assert fast._compiled is not None
         np.testing.assert_allclose(out["fast"], out["slow"], rtol=1e-12,
                                    atol=1e-12 * np.abs(out["slow"]).max())
+    # a daemon's passes: runs of a few rows, stepped compiled, and the NumPy run at once
+    sizes = np.resize([1, 3, hybrid_module.STREAMED_ROWS, 2], len(x))
+    cuts = np.cumsum(sizes)[np.cumsum(sizes) < len(x)]
+    state, chunks = fast.initial_state(1), []
+    for part in np.split(x, cuts):
+        y, state = fast.run(part, state)
+        chunks.append(y)
+    whole, _ = slow.run(x, slow.initial_state(1))
+    np.testing.assert_allclose(np.concatenate(chunks), whole, rtol=1e-10,
+                               atol=1e-10 * np.abs(whole).max())
 
 
 def test_two_streams_step_independently(trained):
