@@ -272,9 +272,7 @@ class HybridStep1:
         xb = _rows(x[None] if single else x)
         if state is None:
             state = self.initial_state(len(xb))
-        if self._compiled is DEFERRED:
-            self._compiled = self._streaming_kernels()
-        if self._compiled is not None:
+        if self._compiled_step() is not None:
             y, state = self._step_compiled(xb, state)
             return (y[0] if single else y), state
         history, started, follower = state
@@ -286,10 +284,16 @@ class HybridStep1:
         y = self._combine(xb, acc, presliding).torque
         return (y[0] if single else y), (history, new_started, follower)
 
+    def _compiled_step(self) -> tuple | None:
+        """What :meth:`_step_compiled` needs, built on first use; None: NumPy serves."""
+        if self._compiled is DEFERRED:
+            self._compiled = self._streaming_kernels()
+        return self._compiled
+
     def _streaming_kernels(self) -> tuple | None:
-        """``(motion, combine, constants)`` of :meth:`_step_compiled`, or None: numba missing
-        or switched off, or an acceleration filter that reads ahead (it cannot stream; the
-        NumPy step says so)."""
+        """``(motion, combine, rigid parameters, play widths, constants)`` of
+        :meth:`_step_compiled`, or None: numba missing or switched off, or an acceleration
+        filter that reads ahead (it cannot stream; the NumPy step says so)."""
         kernels = hybrid_kernels() if not self.acceleration.lookahead else None
         if kernels is None:
             return None
@@ -333,18 +337,15 @@ class HybridStep1:
     def run(self, x: np.ndarray, state: HybridState) -> tuple[np.ndarray, HybridState]:
         """Consecutive samples of one stream: (T, 12) -> (T, 6) torques and the new state.
         A run of up to :data:`STREAMED_ROWS` (a daemon's pass) is stepped row by row by the
-        compiled step where there is one; longer runs go through NumPy at once."""
+        compiled step where there is one (built on first use, as :meth:`step`'s); longer
+        runs go through NumPy at once."""
         xb = _rows(x)
-        if len(xb) <= STREAMED_ROWS and self._compiled is not None and (
-                self._compiled is not DEFERRED or compile_now()):
-            if self._compiled is DEFERRED:
-                self._compiled = self._streaming_kernels()
-            if self._compiled is not None:
-                out = np.empty((len(xb), N_JOINTS))
-                for k in range(len(xb)):
-                    y, state = self._step_compiled(xb[k:k + 1], state)
-                    out[k] = y[0]
-                return out, state
+        if len(xb) <= STREAMED_ROWS and self._compiled_step() is not None:
+            out = np.empty((len(xb), N_JOINTS))
+            for k in range(len(xb)):
+                y, state = self._step_compiled(xb[k:k + 1], state)
+                out[k] = y[0]
+            return out, state
         history, started, follower = state
         acc, (history, new_started) = self.acceleration.run(xb[:, N_JOINTS:],
                                                             (history, started))

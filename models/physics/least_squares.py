@@ -131,9 +131,24 @@ class RigidBodyFrictionModel:
         as one segment from its first sample. Ignored without ``config.hysteresis_width``.
         """
         y = rigid.regressor(q, dq, ddq)
-        n = y.shape[0]
-        q, dq, ddq = (np.asarray(a, dtype=np.float64).reshape(n, N_JOINTS) for a in (q, dq, ddq))
+        per_joint = RigidBodyFrictionModel._per_joint(y.shape[0], q, dq, ddq, config,
+                                                      presliding)
+        out = np.empty((y.shape[0], N_JOINTS, RigidBodyFrictionModel.n_columns(config)))
+        out[:, :, :N_INERTIAL] = y
         eye = np.eye(N_JOINTS)
+        for k, values in enumerate(per_joint):
+            out[:, :, N_INERTIAL + k * N_JOINTS:N_INERTIAL + (k + 1) * N_JOINTS] = (
+                eye * values[:, :, None])
+        return out
+
+    @staticmethod
+    def _per_joint(n: int, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray,
+                   config: LeastSquaresConfig, presliding: np.ndarray | None
+                   ) -> list[np.ndarray]:
+        """The diagonal columns' (n, 6) values in their order: armature (ddq), Coulomb,
+        viscous (dq), offset (ones) [, spring (q)] [, presliding] (``presliding`` as in
+        :meth:`columns`)."""
+        q, dq, ddq = (np.asarray(a, dtype=np.float64).reshape(n, N_JOINTS) for a in (q, dq, ddq))
         per_joint = [ddq, coulomb_shape(dq, config.coulomb_velocity), dq, np.ones_like(dq)]
         if config.spring:
             per_joint.append(q)
@@ -143,12 +158,7 @@ class RigidBodyFrictionModel:
             if p.shape != q.shape:
                 raise DataError(f"presliding must have shape {q.shape}, got {p.shape}")
             per_joint.append(p)
-        out = np.empty((n, N_JOINTS, RigidBodyFrictionModel.n_columns(config)))
-        out[:, :, :N_INERTIAL] = y
-        for k, values in enumerate(per_joint):
-            out[:, :, N_INERTIAL + k * N_JOINTS:N_INERTIAL + (k + 1) * N_JOINTS] = (
-                eye * values[:, :, None])
-        return out
+        return per_joint
 
     @classmethod
     def fit(cls, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray, tau: np.ndarray,
@@ -179,23 +189,12 @@ class RigidBodyFrictionModel:
         times the coefficients, without building the columns past the rigid body's (the
         others are diagonal: each joint's own value times its coefficient)."""
         rigid = rigid if rigid is not None else RigidBodyModel()
-        config, coef = self.config, self.coefficients
+        coef = self.coefficients
         y = rigid.regressor(q, dq, ddq)
-        n = y.shape[0]
-        q, dq, ddq = (np.asarray(a, dtype=np.float64).reshape(n, N_JOINTS) for a in (q, dq, ddq))
-        per_joint = [ddq, coulomb_shape(dq, config.coulomb_velocity), dq, None]
-        if config.spring:
-            per_joint.append(q)
-        if config.hysteresis_width is not None:
-            p = (self.presliding(q, config) if presliding is None
-                 else np.asarray(presliding, dtype=np.float64))
-            if p.shape != q.shape:
-                raise DataError(f"presliding must have shape {q.shape}, got {p.shape}")
-            per_joint.append(p)
         out = y @ coef[:N_INERTIAL]
-        for k, values in enumerate(per_joint):
-            c = coef[N_INERTIAL + k * N_JOINTS:N_INERTIAL + (k + 1) * N_JOINTS]
-            out += c if values is None else values * c          # None: the offset's ones
+        for k, values in enumerate(self._per_joint(y.shape[0], q, dq, ddq, self.config,
+                                                   presliding)):
+            out += values * coef[N_INERTIAL + k * N_JOINTS:N_INERTIAL + (k + 1) * N_JOINTS]
         return out
 
     def to_dict(self) -> dict:

@@ -60,7 +60,8 @@ def _config(path: Path, endpoint: str, arms: list[str], log_dir: Path,
              f'directory = "{log_dir}"', f"enabled = {str(log).lower()}", "[ring]",
              "capacity = 4000", f'intake = "{intake}"']
     for arm in arms:
-        lines += ["[[arms]]", f'name = "{arm}"', 'encoding = "json"', f"model = {json.dumps(model)}",
+        lines += ["[[arms]]", f'name = "{arm}"', 'encoding = "json"',
+                  f"model = {json.dumps(model)}",
                   "[arms.pipeline.adaptation]", f"enabled = {str(adaptation).lower()}"]
     path.write_text("\n".join(lines) + "\n")
 
