@@ -194,8 +194,13 @@ class HybridStep1:
         self._compiled: Any = DEFERRED            # the streaming kernels, built on first use
 
     def __getstate__(self) -> dict:
-        # the compiled kernels stay in their process: the receiver fetches its own
-        return {**self.__dict__, "_compiled": DEFERRED}
+        # the compiled kernels stay in their process: the receiver fetches its own (the
+        # DEFERRED marker itself would not survive a pickle as the same object)
+        return {k: v for k, v in self.__dict__.items() if k != "_compiled"}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self._compiled = DEFERRED
 
     # -- batch ---------------------------------------------------------------------------
     def _combine(self, x: np.ndarray, acc: np.ndarray,

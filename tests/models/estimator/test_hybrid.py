@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import pickle
 
 import numpy as np
 import pytest
@@ -135,6 +136,21 @@ def test_the_compiled_step_is_the_numpy_step(trained):
     whole, _ = slow.run(x, slow.initial_state(1))
     np.testing.assert_allclose(np.concatenate(chunks), whole, rtol=1e-10,
                                atol=1e-10 * np.abs(whole).max())
+
+
+def test_a_pickled_or_copied_model_streams_as_the_original(trained):
+    """A model sent to another process (pickled) or deep-copied leaves its compiled step
+    behind and builds its own: it streams the same torques."""
+    test = trajectory(1.0, phase=0.4)
+    x = np.concatenate([test.position, test.velocity], 1)
+    trained.kernel()
+    want, _ = trained.run(x, trained.initial_state(1))
+    for other in (pickle.loads(pickle.dumps(trained)), copy.deepcopy(trained)):
+        state, rows = None, []
+        for row in x:
+            y, state = other.step(row, state)
+            rows.append(y)
+        np.testing.assert_allclose(np.array(rows), want, rtol=0, atol=1e-10)
 
 
 def test_two_streams_step_independently(trained):
