@@ -323,8 +323,13 @@ class HybridStep1:
         regressor, the residual net and the coverage's distances."""
         motion, combine, theta, width, constants = self._compiled
         history, started, follower = state
-        if history.shape[0] != len(xb) or follower.shape != (len(xb), N_JOINTS):
-            raise DataError(f"a state of {history.shape[0]} streams for {len(xb)} rows")
+        streams = (len(xb),)
+        if (history.shape != streams + self.acceleration.weights.shape[::-1]
+                or started.shape != streams or follower.shape != streams + (N_JOINTS,)):
+            # the kernels do not check their indices: a state of another shape is refused
+            raise DataError(f"a state of {history.shape[0]} streams for {len(xb)} rows "
+                            f"(or not this model's: history {history.shape}, started "
+                            f"{started.shape}, follower {follower.shape})")
         q = np.ascontiguousarray(xb[:, :N_JOINTS])
         dq = np.ascontiguousarray(xb[:, N_JOINTS:])
         acc, history, presliding, follower = motion(q, dq, history, started,

@@ -153,6 +153,18 @@ def test_a_pickled_or_copied_model_streams_as_the_original(trained):
         np.testing.assert_allclose(np.array(rows), want, rtol=0, atol=1e-10)
 
 
+def test_a_state_of_another_shape_is_refused(trained):
+    """The compiled step reads its state without bounds checks: a state for other streams
+    or another filter is refused with a clear error before it gets there."""
+    row = np.concatenate([CENTRE, np.zeros(6)])
+    history, started, follower = trained.initial_state(2)
+    for bad in ((history, started, follower),                      # two streams, one row
+                (history[:1, :-1], started[:1], follower[:1]),       # a shorter filter
+                (history[:1], started, follower[:1])):
+        with pytest.raises(DataError, match="state"):
+            trained.step(row, bad)
+
+
 def test_two_streams_step_independently(trained):
     one, two = trajectory(1.0), trajectory(1.0, phase=0.7)
     x1 = np.concatenate([one.position, one.velocity], 1)
