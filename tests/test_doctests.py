@@ -23,6 +23,7 @@ MODULES = (
     "wrenchd.service.replay.detector",
     "wrenchd.models.drift_detector",
     "wrenchd.models.adaptation.adapter",
+    "wrenchd.models.series",
 )
 
 

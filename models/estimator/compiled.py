@@ -150,6 +150,22 @@ def hybrid_kernels() -> dict[str, Callable] | None:
     return {name: getattr(ck, name) for name in HYBRID_KERNELS}
 
 
+def wrench_kernel() -> Callable | None:
+    """The wrench map's fast path compiled (``plain_wrench``), called once so that it is
+    compiled or read from numba's cache now; None where numba is missing, switched off or
+    fails here (LAPACK serves)."""
+    if _kernels() is None:
+        return None
+    from wrenchd.models.estimator import compiled_kernels as ck
+
+    try:
+        ck.plain_wrench(np.eye(6), np.zeros(6), 1.0, np.empty(6))
+    except Exception as exc:  # noqa: BLE001 - LAPACK serves instead
+        warnings.warn(f"compiled kernels unavailable, NumPy serves: {exc}", RuntimeWarning)
+        return None
+    return ck.plain_wrench
+
+
 def _import_kernels(numba):
     """The kernels' module; its functions cache their machine code next to it or in the
     user's cache, and where neither is writable (a hardened service: a read-only system, no

@@ -315,3 +315,49 @@ def hybrid_combine(rigid, q, dq, acc, presliding, friction, coulomb_v0, spring, 
                 t += presliding[s, j] * friction[k, j]
             y[s, j] = t + w * residual[s, j]
     return y
+
+
+@exact
+def plain_wrench(jac, tau, bound2, out):
+    """The undamped tip wrench ``out = J^-T tau`` (6,) of a (6, 6) Jacobian where it is
+    provably exact, as :meth:`~wrenchd.models.estimator.wrench.WrenchMap.wrench`'s fast path:
+    ``J^-1`` by Gauss-Jordan elimination with partial pivoting, and True when ``J`` is
+    invertible and ``||J^-1||_F^2 <= bound2`` (then ``s_min >= threshold``); False (``out``
+    untouched) where the damped map must decide."""
+    n = jac.shape[0]
+    a = np.empty((n, 2 * n))
+    for i in range(n):
+        for j in range(n):
+            a[i, j] = jac[i, j]
+            a[i, n + j] = 1.0 if i == j else 0.0
+    for col in range(n):
+        pivot, best = col, abs(a[col, col])
+        for i in range(col + 1, n):
+            if abs(a[i, col]) > best:
+                pivot, best = i, abs(a[i, col])
+        if best == 0.0 or not np.isfinite(best):
+            return False
+        if pivot != col:
+            for j in range(2 * n):
+                a[col, j], a[pivot, j] = a[pivot, j], a[col, j]
+        inv_p = 1.0 / a[col, col]
+        for j in range(2 * n):
+            a[col, j] *= inv_p
+        for i in range(n):
+            if i != col:
+                f = a[i, col]
+                if f != 0.0:
+                    for j in range(2 * n):
+                        a[i, j] -= f * a[col, j]
+    frob2 = 0.0
+    for i in range(n):
+        for j in range(n):
+            frob2 += a[i, n + j] * a[i, n + j]
+    if not frob2 <= bound2:
+        return False
+    for j in range(n):                       # (J^-1)^T tau: column j of J^-1 against tau
+        acc = 0.0
+        for i in range(n):
+            acc += a[i, n + j] * tau[i]
+        out[j] = acc
+    return True

@@ -18,6 +18,7 @@ changing weights.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -29,7 +30,7 @@ from wrenchd.models.estimator.correction import Corr, CorrKernel, HistoryWindow,
 from wrenchd.models.estimator.features import position_jumps, segments
 from wrenchd.models.estimator.free_space import FreeSpaceModel
 from wrenchd.models.estimator.wrench import WrenchMap, WrenchMapConfig
-from wrenchd.models.series import N_JOINTS, JointStates
+from wrenchd.models.series import N_JOINTS, JointStates, all_finite
 
 
 class EstimatorConfig(BaseModel):
@@ -141,6 +142,7 @@ class TwoStepEstimator:
         self.wrench_map = wrench_map if wrench_map is not None else WrenchMap(self.config.wrench)
         jump = self.config.max_jump
         self._max_jump = None if jump is None else np.asarray(jump, dtype=np.float64)
+        self._jump_list = None if jump is None else [float(v) for v in jump]
         self.refresh()
 
     @property
@@ -225,8 +227,14 @@ class TwoStepEstimator:
         jump = self._max_jump
         if jump is None:
             return False
-        moved = q - self._q_last - (dq + self._dq_last) * (0.5 * (t - self._t_last))
-        return bool((np.abs(moved) > jump).any())
+        # six Python floats, in NumPy's order of operations (the same bits): the per-sample
+        # path, where six-element array operations cost more than the arithmetic
+        half = 0.5 * (t - self._t_last)
+        for a, b, v, w, limit in zip(q.tolist(), self._q_last.tolist(), dq.tolist(),
+                                     self._dq_last.tolist(), self._jump_list):
+            if abs(a - b - (v + w) * half) > limit:
+                return True
+        return False
 
     def step_one(self, t: float, q: np.ndarray, dq: np.ndarray,
                  tau_measured: np.ndarray) -> EstimatorOutput:
@@ -245,7 +253,7 @@ class TwoStepEstimator:
             raise DataError(f"q, dq and tau_measured must have shape (6,), got {q.shape}, "
                             f"{dq.shape}, {tau_measured.shape}")
         x = np.concatenate([q, dq])                              # (12,) [q, dq]
-        if not (np.isfinite(t) and np.isfinite(x).all() and np.isfinite(tau_measured).all()):
+        if not (math.isfinite(t) and all_finite(x, tau_measured)):
             raise DataError("joint state contains NaN or Inf")
         restart = (self._t_last is None or not 0.0 < t - self._t_last <= self.config.max_gap_s
                    or self._jumped(t, q, dq))

@@ -37,7 +37,7 @@ from wrenchd.models.errors import DataError
 from wrenchd.models.estimator.estimator import TwoStepEstimator
 from wrenchd.models.estimator.free_space import FreeSpaceModel
 from wrenchd.models.gate import FreeMotionGate, GateDecision
-from wrenchd.models.series import N_JOINTS, JointSample
+from wrenchd.models.series import N_JOINTS, JointSample, all_finite
 from wrenchd.service.pipeline.calibration import CalibrationPhase
 from wrenchd.service.pipeline.adaptation import AdaptationBackend, InlineAdaptation, initial_corr
 from wrenchd.service.pipeline.config import PipelineConfig
@@ -238,9 +238,7 @@ class ArmPipeline:
             if self.weak is not None:
                 self.weak.clear()
             events.append(Event(t, EventKind.GAP, {"arm": self.arm, "gap_s": gap_s}))
-        # a non-finite value makes the sum non-finite; a finite sum can only overflow (then
-        # the exact check decides): six Python floats add faster than NumPy checks six values
-        if not math.isfinite(sum(out.wrench.tolist())) and not np.isfinite(out.wrench).all():
+        if not all_finite(out.wrench):
             return None, events + [self._error(t, "non_finite_output", "estimate not finite")]
         if out.restarted and gap_s is None and self.counters.estimated and not (
                 events and events[-1].kind == EventKind.CLOCK_RESET):

@@ -14,6 +14,11 @@ from wrenchd.service.pipeline.config import ValidationConfig
 _FIELDS = ("position", "velocity", "effort")
 
 
+def _floats(values) -> list:
+    """The values of a (6,) array or sequence as a list (a list as it is)."""
+    return values.tolist() if isinstance(values, np.ndarray) else list(values)
+
+
 class SampleValidator:
     """Six finite values each of position, velocity and effort, within their bounds.
 
@@ -25,7 +30,7 @@ class SampleValidator:
         self.config = config
         self.limits = tuple(np.asarray(v, dtype=float) for v in (
             config.max_abs_position, config.max_abs_velocity, config.max_abs_effort))
-        self._bounds = np.stack(self.limits)                     # (3, 6)
+        self._bounds = np.stack(self.limits).ravel().tolist()    # 18 floats
 
     def reason(self, sample: JointSample) -> str | None:
         """Why ``sample`` is refused, or None when it is valid."""
@@ -34,9 +39,13 @@ class SampleValidator:
             return (f"position, velocity, effort have {lengths[0]}, {lengths[1]}, {lengths[2]} "
                     f"values; the PSM pipeline needs {N_JOINTS} each")
         values = (sample.position, sample.velocity, sample.effort)
-        # One comparison for the common case (NaN compares False, so it fails too); the
-        # reason is worked out only for a bad sample.
-        if (np.abs(values) <= self._bounds).all():
+        # The common case in Python floats, faster than NumPy on 18 values (NaN compares
+        # False, so it fails too); the reason is worked out only for a bad sample.
+        flat = [*_floats(values[0]), *_floats(values[1]), *_floats(values[2])]
+        for v, bound in zip(flat, self._bounds):
+            if not abs(v) <= bound:
+                break
+        else:
             return None
         for name, v, lim in zip(_FIELDS, values, self.limits):
             if not np.isfinite(v).all():

@@ -210,3 +210,17 @@ def test_streams_stepped_together_one_sample_each_get_what_each_gets_alone(
         np.testing.assert_allclose(wrench, lone["wrench"][:160 - first], rtol=1e-5, atol=1e-5)
     assert restarted.sum() == 1 and np.array([o.restarted for o in got[0]]).sum() == 2
     assert np.array([o.restarted for o in got[1]]).sum() == 2
+
+
+def test_the_jump_check_is_numpys_formula(models_f64):
+    """The streaming jump check in Python floats decides as the array formula does."""
+    est = TwoStepEstimator(models_f64[0])
+    limit = np.asarray(est.config.max_jump)
+    rng = np.random.default_rng(7)
+    for _ in range(2000):
+        est._t_last, t = 1.0, 1.0 + rng.uniform(1e-4, 0.05)
+        est._q_last, est._dq_last = rng.normal(size=6) * 0.5, rng.normal(size=6)
+        dq = rng.normal(size=6)
+        q = est._q_last + (dq + est._dq_last) * 0.5 * (t - 1.0) + rng.normal(size=6) * limit
+        moved = q - est._q_last - (dq + est._dq_last) * (0.5 * (t - est._t_last))
+        assert est._jumped(t, q, dq) == bool((np.abs(moved) > limit).any())

@@ -81,3 +81,33 @@ def test_external_torque_and_shape_checks():
         WrenchMap().wrench(np.zeros(5), np.zeros(6))
     with pytest.raises(DataError):
         WrenchMap().wrench_batch(np.zeros((3, 6)), np.zeros((2, 6)))
+
+
+@pytest.mark.parametrize("region", ["undamped", "near a singularity"])
+def test_compiled_fast_path_equals_lapack(region):
+    """The wrench of one sample, compiled (where numba is) and by LAPACK's LU, on random
+    poses: the same map to rounding, in the damped zone too (where both leave it to the
+    SVD)."""
+    rng = np.random.default_rng(4)
+    q = np.column_stack([rng.uniform(-1, 1, 200), rng.uniform(-0.7, 0.7, 200),
+                         rng.uniform(0.05, 0.22, 200), rng.uniform(-2, 2, (200, 3))])
+    if region == "near a singularity":
+        q[:, 2] = SINGULAR_INSERTION_M + rng.uniform(-1e-3, 1e-3, 200)
+    tau = rng.normal(size=(200, 6)) * [0.2, 0.2, 1.0, 0.01, 0.01, 0.01]
+    compiled, lapack = WrenchMap(), WrenchMap()
+    lapack._plain = False                                 # as without numba
+    a = np.array([compiled.wrench(qi, ti) for qi, ti in zip(q, tau)])
+    b = np.array([lapack.wrench(qi, ti) for qi, ti in zip(q, tau)])
+    np.testing.assert_allclose(a, b, rtol=1e-11, atol=1e-12)
+
+
+def test_a_copied_map_finds_its_own_fast_path():
+    import copy
+    import pickle
+
+    wm = WrenchMap()
+    q, tau = np.array([0.2, -0.1, 0.12, 0.5, 0.3, -0.2]), np.array([0.3, -0.2, 1.5, 0, 0, 0])
+    w = wm.wrench(q, tau)
+    for other in (pickle.loads(pickle.dumps(wm)), copy.deepcopy(wm)):
+        assert other._plain is None                       # not the sender's compiled function
+        np.testing.assert_array_equal(other.wrench(q, tau), w)
