@@ -24,10 +24,10 @@ def all_finite(*values: np.ndarray) -> bool:
     a finite sum proves every term finite; only a sum that overflows is checked exactly (a
     few dozen floats add faster than NumPy tests them).
 
-    >>> all_finite(np.ones(6), np.full(6, 1e308)), all_finite(np.array([1.0, np.nan]))
+    >>> all_finite(np.ones(6), np.full((2, 6), 1e308)), all_finite(np.array([1.0, np.nan]))
     (True, False)
     """
-    if math.isfinite(sum(sum(v.tolist()) for v in values)):
+    if math.isfinite(sum(sum(v.ravel().tolist()) for v in values)):
         return True
     return all(bool(np.isfinite(v).all()) for v in values)
 JOINT_NAMES: tuple[str, ...] = (

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from wrenchd.models.errors import ConfigError, DataError
-from wrenchd.models.series import N_JOINTS
+from wrenchd.models.series import N_JOINTS, all_finite
 
 if TYPE_CHECKING:
     from wrenchd.models.estimator.estimator import EstimatorOutput, TwoStepEstimator
@@ -103,7 +103,7 @@ def _step_one_each(estimators: list[TwoStepEstimator],
         raise DataError(f"t must be (1,) and q, dq, tau_measured (1, 6) per stream; got "
                         f"{q.shape}, {dq.shape}, {tau.shape} for {width} streams")
     x = np.concatenate([q, dq], axis=1)                                   # (B, 12)
-    if not (np.isfinite(t).all() and np.isfinite(x).all() and np.isfinite(tau).all()):
+    if not all_finite(t, x, tau):
         raise DataError("joint state contains NaN or Inf")
     g, hid = layer.n_groups, layer.hidden_size
     h = np.zeros((g, width, hid), dtype=kernel.dtype)
