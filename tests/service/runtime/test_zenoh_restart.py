@@ -27,7 +27,7 @@ import numpy as np
 
 from wrenchd.adapters.messages import decode_wrench
 from wrenchd.adapters.zenoh_io import ZenohConfig, open_session
-from wrenchd.adapters.mcap_log import TOPIC_EVENTS
+from wrenchd.adapters.mcap_log import TOPIC_ESTIMATE, TOPIC_EVENTS
 from tests.support import ROUTER, free_port, read_mcap, readline_within, stop_within, wait_for
 
 KEYS = {k: f"dvrk/PSM2/{v}" for k, v in (("wrench", "wrenchd/measured_cf"),
@@ -129,6 +129,14 @@ def stop(proc: subprocess.Popen | None, sig=signal.SIGKILL) -> None:
             proc.communicate(timeout=10)
 
 
+def log_stamps(path: Path, topic: str) -> list[int]:
+    """The stamps [ns] of ``topic``'s messages in a daemon's MCAP log (its log times)."""
+    from mcap.reader import make_reader
+
+    with open(path, "rb") as f:
+        return [m.log_time for _, ch, m in make_reader(f).iter_messages() if ch.topic == topic]
+
+
 def resumed_after(listener: Listener, t0: float, n_before: int) -> float:
     """Seconds from ``t0`` to the first wrench after the first ``n_before`` ones."""
     wait_for(lambda: len(listener.wrenches) >= n_before + 200, RESUME_S,
@@ -163,7 +171,6 @@ def test_router_killed_and_restarted_mid_stream(tmp_path):
         router.wait(timeout=10)
         killed = len(listener.wrenches)
         time.sleep(1.0)
-        assert len(listener.wrenches) - killed < 50          # at most what was in flight
         down = len(listener.wrenches)
         t_restart = time.monotonic()
         router = start_router(endpoint)                      # same port
@@ -209,14 +216,29 @@ def test_router_killed_and_restarted_mid_stream(tmp_path):
     gaps = [e for e in logged if e["kind"] == "gap"]
     assert c["gaps"] == 1 and len(gaps) == 1 and gaps[0]["gap_s"] > 1.0
     # what the daemon estimated is everything but the outage: the samples its gap spans
-    # (the robot stamps one every 5 ms), however long the restart took on a loaded machine;
-    # and it all reached this subscriber but for what the daemon published while the router
-    # was dead
+    # (the robot stamps one every 5 ms), however long the restart took on a loaded machine
     lost = published - c["estimated"]
     assert lost > 0 and lost == round(gaps[0]["gap_s"] * 200) - 1, (lost, gaps[0])
-    assert 0 <= c["estimated"] - received < 50
+    # and it reached this subscriber, in order, nothing twice, nothing the daemon did not log,
+    # but for what was on its way when the router died, what the daemon published after the
+    # restart before this subscriber's route to it was back (the two clients re-connect on
+    # their own), and what zenoh dropped on the way to this subscriber when it fell behind
+    # (zenoh's default for a put drops, never blocks, under congestion): told apart by their
+    # stamps against the daemon's log. How many depends on this process's speed, not the
+    # daemon's (0-6 on a quiet 2-core machine, 13-130 beside a test suite; a bound of 50 once
+    # failed CI): a bound of two seconds of stream tells a stalled route from a queue's worth.
     stamps = np.array([w[1] for w in listener.wrenches])
-    assert np.all(np.diff(stamps) > 0)
+    assert np.all(np.diff(stamps) > 0) and received == len(stamps)
+    estimated_ns = np.array(sorted(ns for log in logs for ns in log_stamps(log, TOPIC_ESTIMATE)))
+    assert len(estimated_ns) == c["estimated"]
+    assert np.setdiff1d(stamps, estimated_ns).size == 0
+    resumed = int(np.argmax(np.diff(estimated_ns))) + 1      # the first estimate after the outage
+    missed = np.setdiff1d(estimated_ns, stamps)
+    before = int(np.sum(missed < estimated_ns[resumed]))
+    print(f"wrenches not received: {before} before the outage, {len(missed) - before} after it")
+    assert len(missed) < 2.0 * 200, len(missed)
+    # with the router dead, only wrenches already on their way arrived
+    assert np.all(stamps[killed:down] < estimated_ns[resumed])
     assert assert_swaps_validated(listener.events) >= 1      # adaptation went on
     # the daemon saw its router go and come back: both are in its log (the first was
     # published to nobody), and its status counts the loss
