@@ -30,6 +30,8 @@ def all_finite(*values: np.ndarray) -> bool:
     if math.isfinite(sum(sum(v.ravel().tolist()) for v in values)):
         return True
     return all(bool(np.isfinite(v).all()) for v in values)
+
+
 JOINT_NAMES: tuple[str, ...] = (
     "outer_yaw",
     "outer_pitch",

@@ -161,7 +161,7 @@ def wrench_kernel() -> Callable | None:
     try:
         ck.plain_wrench(np.eye(6), np.zeros(6), 1.0, np.empty(6))
     except Exception as exc:  # noqa: BLE001 - LAPACK serves instead
-        warnings.warn(f"compiled kernels unavailable, NumPy serves: {exc}", RuntimeWarning)
+        warnings.warn(f"compiled kernels unavailable, LAPACK serves: {exc}", RuntimeWarning)
         return None
     return ck.plain_wrench
 
