@@ -263,15 +263,23 @@ class TwoStepEstimator:
         if self._state is None:
             self._state = self._recurrent.initial_state(1)
         y, self._state = self._recurrent.step(x[None, :], self._state)
-        step1, window = y[0].astype(np.float64), None
+        return self._finish_one(float(t), q, x, tau_measured, restart, y[0].astype(np.float64), y)
+
+    def _finish_one(self, t: float, q: np.ndarray, x: np.ndarray, tau_measured: np.ndarray,
+                    restart: bool, step1: np.ndarray, corr_in: np.ndarray) -> EstimatorOutput:
+        """Corr, external torque and wrench of one sample whose step 1 is known (one stream's
+        step, or one arm's share of arms stepped together): ``step1`` (6,) float64, and
+        ``corr_in`` (1, 6) the same as the ``Corr`` takes it."""
+        window = None
+        predicted = step1
         if self._corr is not None:
+            if restart:
+                self._window.reset()
             window = self._window.push(x)
-            y = self._corr.correct(window[None], y)
-        predicted = y[0].astype(np.float64)
+            predicted = self._corr.correct(window[None], corr_in)[0].astype(np.float64)
         external = tau_measured - predicted
-        wrench = self.wrench_map.wrench(q, external)
-        return EstimatorOutput(float(t), predicted, external, wrench, restart, step1,
-                               None if window is None else window.copy())
+        return EstimatorOutput(t, predicted, external, self.wrench_map.wrench(q, external),
+                               restart, step1, None if window is None else window.copy())
 
     def step_many(self, t: np.ndarray, q: np.ndarray, dq: np.ndarray,
                   tau_measured: np.ndarray) -> list[EstimatorOutput]:
@@ -336,26 +344,22 @@ class TwoStepEstimator:
         """Corr, external torque and wrench of a run of samples whose step 1 is known."""
         n = len(t)
         self._t_last, self._q_last, self._dq_last = float(t[-1]), q[-1], x[-1, N_JOINTS:]
+        if n == 1:                                      # the common case, without the runs
+            return [self._finish_one(float(t[0]), q[0], x[0], tau_measured[0], bool(restart[0]),
+                                     step1[0], step1.astype(np.float32))]
         if self._corr is not None:
-            if n == 1:                                  # the common case, without the runs
-                if restart[0]:
+            windows = []
+            for a, b in _segments(restart):
+                if restart[a]:
                     self._window.reset()
-                win = self._window.push(x[0])[None].copy()
-            else:
-                windows = []
-                for a, b in _segments(restart):
-                    if restart[a]:
-                        self._window.reset()
-                    windows += [self._window.push(row).copy() for row in x[a:b]]
-                win = np.stack(windows)
+                windows += [self._window.push(row).copy() for row in x[a:b]]
+            win = np.stack(windows)
             predicted = self._corr.correct(win, step1.astype(np.float32)).astype(np.float64)
         else:
             win, predicted = None, step1
         external = tau_measured - predicted
         if n >= 4:
             wrench = self.wrench_map.wrench_batch(q, external)
-        elif n == 1:                                    # the streaming case: no stacking
-            wrench = self.wrench_map.wrench(q[0], external[0])[None]
         else:
             wrench = np.stack([self.wrench_map.wrench(q[i], external[i]) for i in range(n)])
         return [EstimatorOutput(float(t[i]), predicted[i], external[i], wrench[i],
