@@ -227,8 +227,8 @@ def test_router_killed_and_restarted_mid_stream(tmp_path):
     # stamps against the daemon's log. How many depends on this process's speed, not the
     # daemon's (0-6 on a quiet 2-core machine, 13-130 beside a test suite; a bound of 50 once
     # failed CI): a bound of two seconds of stream tells a stalled route from a queue's worth.
-    stamps = np.array([w[1] for w in listener.wrenches])
-    assert np.all(np.diff(stamps) > 0) and received == len(stamps)
+    stamps = np.array([w[1] for w in listener.wrenches[:received]])
+    assert np.all(np.diff(stamps) > 0)
     estimated_ns = np.array(sorted(ns for log in logs for ns in log_stamps(log, TOPIC_ESTIMATE)))
     assert len(estimated_ns) == c["estimated"]
     assert np.setdiff1d(stamps, estimated_ns).size == 0
