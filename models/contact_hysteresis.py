@@ -33,6 +33,13 @@ with the pose (as above) **and** a tip force leaves more than ``tip_misfit`` of 
 residual unexplained (median over the rows): a set-up change, its scale re-learnt as an
 announced one's. Either test alone calls real contacts set-up changes (docs/results.md).
 
+A new set-up's model error reads as a contact at first. With the tip-form function, a contact
+begun (or published again) within ``announced_hold_s`` of an announcement is **withheld**:
+published free, never trainable, until its rows since then are a tip force's (a fitted tip
+force leaves under ``announced_release_misfit`` of their scored residual, from ``HOLD_ROWS``
+rows on) or its announced check finds no set-up change. A contact's force at the tip is
+published a few rows late; the change's error is never published as a contact.
+
 The residuals, tip forces, positions and times are buffered every ``SETUP_STRIDE`` samples in
 a ring of ``SETUP_RING`` rows, so the hot path gains a counter and now and then a row.
 """
@@ -60,6 +67,9 @@ ROW = 17
 #: after its first, the tip-form check runs every this fraction of ``tip_setup_s`` (on the
 #: last ``tip_setup_s``)
 TIP_EVERY = 0.25
+
+#: a withheld contact is judged on its form from this many buffered rows on
+HOLD_ROWS = 3
 
 #: :meth:`ContactHysteresis.hold` outcomes
 HELD, ENDED, SETUP, TOO_LONG = 0, 1, 2, 3
@@ -129,6 +139,9 @@ class ContactHysteresis:
         self._tip_t = math.inf                 # when the contact's form is judged next
         self.judged: np.ndarray | None = None  # the rows the last set-up verdict read
         self.tip_form = False                  # that verdict was the tip-form check's
+        self.withheld = False                  # begun just after an announcement: not
+                                               # published until its form or check clears it
+        self._withheld_t = 0.0                 # when it was withheld
 
     def enter(self, index: int, t: float, score: float, joint: float) -> bool:
         """Count a free sample's scores toward the enter bounds; True when sample ``index``
@@ -159,6 +172,8 @@ class ContactHysteresis:
         self.contacts += 1
         self._watch(t)
         self._tip_t = t + self.config.tip_setup_s if self._tip_misfit is not None else math.inf
+        if self._holds(t):
+            self._withhold(t)
 
     def _watch(self, t: float, again: bool = False) -> None:
         """Buffer afresh from ``t`` [s], to be judged ``setup_contact_s`` later; a contact
@@ -188,6 +203,27 @@ class ContactHysteresis:
         """(n, ``ROW``) the contact's buffered rows since its check began (the last
         ``SETUP_RING``, not in order once the ring has wrapped)."""
         return self._ring[:min(self._ring_n, SETUP_RING)]
+
+    def _holds(self, t: float) -> bool:
+        """A contact (re-)entered at ``t`` [s] is withheld: ``announced_hold_s`` after an
+        announcement, its check due (``announced_setup_s``), with the tip-form check to
+        release it early and ``release_free`` to publish it free meanwhile."""
+        c = self.config
+        return (self.announced and t - self.announced_t <= c.announced_hold_s
+                and c.release_free and self._tip_misfit is not None)
+
+    def _withhold(self, t: float) -> None:
+        self.published, self.withheld, self._withheld_t = False, True, t
+
+    def _tip_form_since(self, t0: float) -> bool:
+        """The rows buffered since ``t0`` [s] over the exit bounds, at least
+        ``HOLD_ROWS`` of them, are a tip force's: a fitted tip force leaves under
+        ``announced_release_misfit`` of their scored residual (median)."""
+        rows = self.buffered()
+        rows = rows[(rows[:, TIME] >= t0) & (rows[:, BELOW] == 0)]
+        if len(rows) < HOLD_ROWS or not np.isfinite(rows[:, POS]).all():
+            return False
+        return float(np.median(self._tip_misfit(rows))) < self.config.announced_release_misfit
 
     def _looks_like_setup(self, rows: np.ndarray) -> bool:
         """The rows' tip force is no larger than ``setup_max_force_n`` (RMS) and swings
@@ -233,15 +269,20 @@ class ContactHysteresis:
             row[TIME] = t
             row[BELOW] = below
             self._ring_n += 1
+            if self.withheld and self._tip_form_since(self._withheld_t):
+                self.withheld, self.published = False, not below
         if c.release_free:
             if self.published:
                 if below:                              # released: published free from here
                     self.published, self._above, self._joint_above = False, 0, 0
-            else:                                      # published again on a new entry only
+            elif not self.withheld:                    # published again on a new entry only
                 self._above = self._above + 1 if score > c.enter_sigma else 0
                 self._joint_above = self._joint_above + 1 if joint > c.joint_sigma else 0
                 if self._above >= c.enter_samples or self._joint_above >= c.joint_samples:
-                    self.published = True
+                    if self._holds(t):
+                        self._withhold(t)
+                    else:
+                        self.published = True
         if below:
             if self._below_since is None:
                 self._below_since = t
@@ -268,6 +309,9 @@ class ContactHysteresis:
             return SETUP if setup else TOO_LONG
         if t >= self._check_t:                         # a steady force: judged again later
             self._watch(t, again=True)
+            if self.withheld:                          # a contact after all: published
+                self.withheld = False
+                self.published = not below
         return HELD
 
     @property
@@ -278,5 +322,5 @@ class ContactHysteresis:
 
     def _end(self) -> None:
         self.in_contact, self._above, self._joint_above = False, 0, 0
-        self.published = False
+        self.published = self.withheld = False
         self.ended_start, self.contact_start = self.contact_start, -1

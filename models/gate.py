@@ -97,6 +97,19 @@ class GateConfig(BaseModel):
                     "this long is judged for a set-up change this long after the announcement "
                     "or its start, on what it buffered since the announcement, its scale "
                     "re-learnt as announced_widen says [s]; 0: as any contact")
+    announced_hold_s: float = Field(
+        default=1.0, ge=0.0,
+        description="with the arm's kinematics and release_free, a contact begun (or "
+                    "published again) within this long of an announced set-up change is "
+                    "published free, never trainable, until its residual is a tip force's "
+                    "(announced_release_misfit) or its announced check finds no set-up "
+                    "change: a new set-up's model error reads as a contact at first [s]; "
+                    "0: never")
+    announced_release_misfit: float = Field(
+        default=0.1, gt=0.0, lt=1.0,
+        description="a withheld contact is published once a fitted tip force leaves under "
+                    "this fraction of its scored residual (median over its rows since it "
+                    "was withheld)")
     announced_widen: float = Field(
         default=1.5, ge=1.0,
         description="a scale re-learnt from announced_setup_s of an announced change is its "
@@ -218,6 +231,10 @@ class GateConfig(BaseModel):
         if self.exit_sigma > self.enter_sigma or self.joint_exit_sigma > self.joint_sigma:
             raise ValueError("an exit bound (exit_sigma, joint_exit_sigma) must not exceed its "
                              "enter bound (enter_sigma, joint_sigma)")
+        if self.announced_hold_s > self.announced_setup_s:
+            raise ValueError(f"announced_hold_s ({self.announced_hold_s}) must not exceed "
+                             f"announced_setup_s ({self.announced_setup_s}): a withheld "
+                             "contact waits for its announced check")
         edges = self.reversal_bins_s
         if any(b <= a for a, b in zip((0.0,) + edges, edges)):
             raise ValueError(f"reversal_bins_s must be positive and increasing, got {edges}")
@@ -442,6 +459,7 @@ class FreeMotionGate:
             return GateDecision(True, score, -1, trainable=(tr < cfg.train_sigma
                                                             and t >= self._probation_until),
                                 setup_withdrawn=withdrawn)
+        withheld = contact.withheld
         outcome = contact.hold(t, score, joint, r, force, position)
         if outcome == ch.HELD:
             # with release_free, a released contact is published free (never trainable)
@@ -468,7 +486,8 @@ class FreeMotionGate:
             self._form_call = None
             scale.relearn(rows[:, ch.RES], r)
         self._probation_until = t + (cfg.setup_probation_s if setup else cfg.max_contact_s)
-        return GateDecision(False, score, contact.ended_start, recalibrated=True,
+        # a withheld contact was published free throughout, its end as well
+        return GateDecision(withheld and setup, score, contact.ended_start, recalibrated=True,
                             setup_change=setup)
 
     def _joint_score(self, zsq: list[float], peak: float) -> float:

@@ -5,7 +5,7 @@ force swings with the pose, and keeps a push at the tip a contact however long i
 import numpy as np
 import pytest
 
-from wrenchd.models.contact_hysteresis import tip_force_misfit
+from wrenchd.models.contact_hysteresis import HOLD_ROWS, SETUP_STRIDE, tip_force_misfit
 from wrenchd.models.estimator.wrench import WrenchMap
 from wrenchd.models.gate import FreeMotionGate, GateConfig
 
@@ -175,3 +175,66 @@ def test_a_form_call_made_while_the_contact_s_end_was_pending_stands():
     assert [e for _, e in calls] == [True]
     assert CHANGE + 5.0 * RATE < calls[0][0] < CHANGE + 5.6 * RATE
     assert gate.withdrawn == 0
+
+
+def run_announced(cfg: GateConfig, load: str, at: int):
+    """The session with a set-up change announced at sample ``at``: (decisions, gate)."""
+    q, r, w = session(load)
+    gate = FreeMotionGate(cfg, WRENCH.kinematics)
+    out = []
+    for i in range(N):
+        if i == at:
+            gate.announce(i / RATE)
+        out.append(gate.update(i, i / RATE, r[i], None, w[i], q[i]))
+    return out, gate
+
+
+def first_flag(out) -> int:
+    return next(i for i, d in enumerate(out) if not d.free and i >= CHANGE)
+
+
+def test_a_residual_no_tip_force_makes_just_after_an_announcement_is_never_published():
+    """Withheld (``announced_hold_s``, on by default) until its announced check calls it a
+    set-up change; without the hold the same residual is published as a contact until
+    then."""
+    held = GateConfig(warmup_samples=1000)
+    out, gate = run_announced(held, "setup", CHANGE)
+    (k,) = [i for i, d in enumerate(out) if d.setup_change]
+    assert abs(k - (CHANGE + held.announced_setup_s * RATE)) <= SETUP_STRIDE + 1
+    assert all(d.free for d in out[CHANGE:k + 1])
+    assert not any(d.trainable for d in out[CHANGE:k + 1])
+    assert gate.contact.withheld is False
+
+    plain, _ = run_announced(GateConfig(warmup_samples=1000, announced_hold_s=0), "setup", CHANGE)
+    assert np.mean([not d.free for d in plain[CHANGE:k]]) > 0.5
+
+
+@pytest.mark.parametrize("load", ["push", "turning push"])
+def test_a_push_at_the_tip_just_after_an_announcement_is_published_within_rows(load):
+    """Its form is a tip force's: published from the first ``HOLD_ROWS`` rows of it, and
+    from there as without the hold (a push that turns with the pose is taken for a set-up
+    change at the announced check either way: its force swings)."""
+    held = GateConfig(warmup_samples=1000)
+    out, _ = run_announced(held, load, CHANGE)
+    plain, _ = run_announced(GateConfig(warmup_samples=1000, announced_hold_s=0), load, CHANGE)
+    k, k0 = first_flag(out), first_flag(plain)
+    assert k0 < k <= k0 + (HOLD_ROWS + 1) * SETUP_STRIDE
+    assert [(d.free, d.setup_change, d.trainable) for d in out[k:]] == [
+        (d.free, d.setup_change, d.trainable) for d in plain[k:]]
+    call = next((i for i, d in enumerate(out) if d.setup_change), N)
+    assert not any(d.trainable for d in out[CHANGE:call])
+    if load == "push":
+        assert not any(d.setup_change or d.recalibrated for d in out)
+
+
+def test_a_contact_begun_after_the_hold_is_published_at_once():
+    cfg = GateConfig(warmup_samples=1000)
+    at = CHANGE - int(1.5 * RATE)
+    out, _ = run_announced(cfg, "push", at)
+    plain, _ = run_announced(GateConfig(warmup_samples=1000, announced_hold_s=0), "push", at)
+    assert first_flag(out) == first_flag(plain)
+
+
+def test_the_hold_must_end_before_the_announced_check():
+    with pytest.raises(ValueError, match="announced_hold_s"):
+        GateConfig(announced_hold_s=4.0, announced_setup_s=3.0)
