@@ -142,6 +142,7 @@ class ContactHysteresis:
         self.withheld = False                  # begun just after an announcement: not
                                                # published until its form or check clears it
         self._withheld_t = 0.0                 # when it was withheld
+        self.withheld_count = 0                # contacts withheld so far
 
     def enter(self, index: int, t: float, score: float, joint: float) -> bool:
         """Count a free sample's scores toward the enter bounds; True when sample ``index``
@@ -214,6 +215,7 @@ class ContactHysteresis:
 
     def _withhold(self, t: float) -> None:
         self.published, self.withheld, self._withheld_t = False, True, t
+        self.withheld_count += 1
 
     def _tip_form_since(self, t0: float) -> bool:
         """The rows buffered since ``t0`` [s] over the exit bounds, at least

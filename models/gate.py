@@ -385,6 +385,11 @@ class FreeMotionGate:
         return self.contact.setup_changes
 
     @property
+    def withheld(self) -> int:
+        """Contacts withheld after an announcement so far (``announced_hold_s``)."""
+        return self.contact.withheld_count
+
+    @property
     def calibrated(self) -> bool:
         return self.scale.calibrated
 
