@@ -37,7 +37,7 @@ A new set-up's model error reads as a contact at first. With the tip-form functi
 begun (or published again) within ``announced_hold_s`` of an announcement is **withheld**:
 published free, never trainable, until its rows since then are a tip force's (a fitted tip
 force leaves under ``announced_release_misfit`` of their scored residual, from ``HOLD_ROWS``
-rows on) or its announced check finds no set-up change. A contact's force at the tip is
+rows and ``HOLD_S`` on) or its announced check finds no set-up change. A contact's force at the tip is
 published a few rows late; the change's error is never published as a contact.
 
 The residuals, tip forces, positions and times are buffered every ``SETUP_STRIDE`` samples in
@@ -68,8 +68,9 @@ ROW = 17
 #: last ``tip_setup_s``)
 TIP_EVERY = 0.25
 
-#: a withheld contact is judged on its form from this many buffered rows on
-HOLD_ROWS = 3
+#: a withheld contact is judged on its form from this many buffered rows, spanning this
+#: long [s], on (rows are every SETUP_STRIDE samples: at 1 kHz three come within 30 ms)
+HOLD_ROWS, HOLD_S = 3, 0.1
 
 #: :meth:`ContactHysteresis.hold` outcomes
 HELD, ENDED, SETUP, TOO_LONG = 0, 1, 2, 3
@@ -271,7 +272,8 @@ class ContactHysteresis:
             row[TIME] = t
             row[BELOW] = below
             self._ring_n += 1
-            if self.withheld and self._tip_form_since(self._withheld_t):
+            if (self.withheld and t - self._withheld_t >= HOLD_S
+                    and self._tip_form_since(self._withheld_t)):
                 self.withheld, self.published = False, not below
         if c.release_free:
             if self.published:
