@@ -37,8 +37,8 @@ A new set-up's model error reads as a contact at first. With the tip-form functi
 begun (or published again) within ``announced_hold_s`` of an announcement is **withheld**:
 published free, never trainable, until its rows since then are a tip force's (a fitted tip
 force leaves under ``announced_release_misfit`` of their scored residual, from ``HOLD_ROWS``
-rows and ``HOLD_S`` on) or its announced check finds no set-up change. A contact's force at the tip is
-published a few rows late; the change's error is never published as a contact.
+rows and ``HOLD_S`` on) or its announced check finds no set-up change. A contact's force at
+the tip is published a few rows late; the change's error is never published as a contact.
 
 The residuals, tip forces, positions and times are buffered every ``SETUP_STRIDE`` samples in
 a ring of ``SETUP_RING`` rows, so the hot path gains a counter and now and then a row.
@@ -218,6 +218,10 @@ class ContactHysteresis:
         self.published, self.withheld, self._withheld_t = False, True, t
         self.withheld_count += 1
 
+    def _clear(self, below: bool) -> None:
+        """A withheld contact is a contact after all: published unless its force is gone."""
+        self.withheld, self.published = False, not below
+
     def _tip_form_since(self, t0: float) -> bool:
         """The rows buffered since ``t0`` [s] over the exit bounds, at least
         ``HOLD_ROWS`` of them, are a tip force's: a fitted tip force leaves under
@@ -274,7 +278,7 @@ class ContactHysteresis:
             self._ring_n += 1
             if (self.withheld and t - self._withheld_t >= HOLD_S
                     and self._tip_form_since(self._withheld_t)):
-                self.withheld, self.published = False, not below
+                self._clear(below)
         if c.release_free:
             if self.published:
                 if below:                              # released: published free from here
@@ -313,9 +317,8 @@ class ContactHysteresis:
             return SETUP if setup else TOO_LONG
         if t >= self._check_t:                         # a steady force: judged again later
             self._watch(t, again=True)
-            if self.withheld:                          # a contact after all: published
-                self.withheld = False
-                self.published = not below
+            if self.withheld:                          # no set-up change: a contact
+                self._clear(below)
         return HELD
 
     @property

@@ -385,7 +385,7 @@ class FreeMotionGate:
         return self.contact.setup_changes
 
     @property
-    def withheld(self) -> int:
+    def withheld_contacts(self) -> int:
         """Contacts withheld after an announcement so far (``announced_hold_s``)."""
         return self.contact.withheld_count
 

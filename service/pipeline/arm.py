@@ -458,9 +458,9 @@ class ArmPipeline:
                             "contaminated": self.calibration_contaminated,
                             **self.calibration.fit()},
             "gate": {"in_contact": self.gate.in_contact, "calibrated": self.gate.calibrated,
-                     "contacts": self.gate.contacts, "withheld": self.gate.withheld,
-                     "mean": mean.tolist(),
-                     "std": std.tolist(),
+                     "contacts": self.gate.contacts,
+                     "withheld_contacts": self.gate.withheld_contacts,
+                     "mean": mean.tolist(), "std": std.tolist(),
                      # per reversal bin (the steady bin last), each joint's spread factor
                      "reversal_factors": (None if self.gate.reversal is None
                                           else self.gate.reversal.factors().tolist())},

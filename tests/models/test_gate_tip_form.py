@@ -203,7 +203,7 @@ def test_a_residual_no_tip_force_makes_just_after_an_announcement_is_never_publi
     assert abs(k - (CHANGE + held.announced_setup_s * RATE)) <= SETUP_STRIDE + 1
     assert all(d.free for d in out[CHANGE:k + 1])
     assert not any(d.trainable for d in out[CHANGE:k + 1])
-    assert gate.contact.withheld is False and gate.withheld == 1
+    assert gate.contact.withheld is False and gate.withheld_contacts == 1
 
     plain, _ = run_announced(GateConfig(warmup_samples=1000, announced_hold_s=0), "setup", CHANGE)
     assert np.mean([not d.free for d in plain[CHANGE:k]]) > 0.5
