@@ -227,10 +227,16 @@ class ContactHysteresis:
         ``HOLD_ROWS`` of them, are a tip force's: a fitted tip force leaves under
         ``announced_release_misfit`` of their scored residual (median)."""
         rows = self.buffered()
-        rows = rows[(rows[:, TIME] >= t0) & (rows[:, BELOW] == 0)]
-        if len(rows) < HOLD_ROWS or not np.isfinite(rows[:, POS]).all():
-            return False
-        return float(np.median(self._tip_misfit(rows))) < self.config.announced_release_misfit
+        misfit = self._median_misfit(rows[(rows[:, TIME] >= t0) & (rows[:, BELOW] == 0)],
+                                     HOLD_ROWS)
+        return misfit is not None and misfit < self.config.announced_release_misfit
+
+    def _median_misfit(self, rows: np.ndarray, least: int) -> float | None:
+        """The median fraction of the rows' scored residual a fitted tip force leaves; None
+        with under ``least`` rows or a position that is not finite."""
+        if len(rows) < least or not np.isfinite(rows[:, POS]).all():
+            return None
+        return float(np.median(self._tip_misfit(rows)))
 
     def _looks_like_setup(self, rows: np.ndarray) -> bool:
         """The rows' tip force is no larger than ``setup_max_force_n`` (RMS) and swings
@@ -251,11 +257,10 @@ class ContactHysteresis:
         are left out: a contact's tail, its force gone, is free motion's error."""
         rows = self.buffered()
         rows = rows[(rows[:, TIME] > t - self.config.tip_setup_s) & (rows[:, BELOW] == 0)]
-        if len(rows) < 20 or not np.isfinite(rows[:, POS]).all() or not self._looks_like_setup(
-                rows):
+        if not self._looks_like_setup(rows):            # the cheap test first
             return None
-        misfit = self._tip_misfit(rows)
-        return rows if float(np.median(misfit)) > self.config.tip_misfit else None
+        misfit = self._median_misfit(rows, 20)
+        return rows if misfit is not None and misfit > self.config.tip_misfit else None
 
     def hold(self, t: float, score: float, joint: float, r: list[float],
              force: np.ndarray | None, position: np.ndarray | None = None) -> int:
