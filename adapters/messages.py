@@ -9,7 +9,8 @@ Both encodings carry ``sensor_msgs/JointState`` and ``geometry_msgs/WrenchStampe
 * ``cdr``: the ROS 2 serialisation (little-endian CDR with its 4-byte encapsulation header),
   exactly what a ROS 2 node bridged to zenoh (``zenoh-bridge-ros2dds``, ``rmw_zenoh``)
   publishes, through the ``rosbags`` type store of :mod:`wrenchd.adapters.ros2_msgs` (ROS 2
-  Humble definitions). CDR has
+  Humble definitions; the per-sample joint state and wrench through the same bytes'
+  fast paths in :mod:`wrenchd.adapters.cdr_wire`). CDR has
   no room for extra fields: the gate flag and model version of a CDR arm go to the events and
   status keys and to the MCAP log.
 
@@ -26,6 +27,7 @@ from typing import Any, Literal
 import numpy as np
 import orjson
 
+from wrenchd.adapters import cdr_wire
 from wrenchd.adapters import ros2_msgs as ros2
 from wrenchd.adapters.ros2_msgs import NS_PER_S, split_ns
 from wrenchd.models.errors import ConfigError, DataError
@@ -175,6 +177,9 @@ def _cdr_joint_state(stamp_ns: int, frame_id: str, names, position, velocity, ef
 
 
 def _decode_cdr_joint_state(payload: bytes) -> JointSample:
+    fast = cdr_wire.decode_joint_state(payload)
+    if fast is not None:
+        return JointSample(*fast)
     msg = ros2.deserialize(payload, JOINT_STATE_TYPE)
     return JointSample(ros2.time_ns(msg.header.stamp), msg.header.frame_id, tuple(msg.name),
                        np.array(msg.position, dtype=np.float64),
@@ -183,6 +188,9 @@ def _decode_cdr_joint_state(payload: bytes) -> JointSample:
 
 
 def _cdr_wrench(stamp_ns: int, frame_id: str, wrench: np.ndarray) -> bytes:
+    fast = cdr_wire.encode_wrench_stamped(stamp_ns, frame_id, wrench)
+    if fast is not None:
+        return fast
     vector = ros2.message_class(ros2.VECTOR3)
     f = [float(v) for v in wrench]
     return ros2.serialize(ros2.message_class(WRENCH_TYPE)(
