@@ -15,6 +15,7 @@ from wrenchd.adapters.mcap_session import TOPIC_JOINT_STATES
 from wrenchd.adapters.messages import (JOINT_STATE_TYPE, WRENCH_TYPE, decode_joint_state,
                                       decode_setup_change, encode_wrench, prepare_encoding)
 from wrenchd.adapters.rmw_zenoh import PUBLISHER, SUBSCRIPTION, Stamper, endpoint
+from wrenchd.adapters.ros2_msgs import is_cdr
 from wrenchd.adapters.zenoh_io import sample_mark, wire_encoding, zenoh_encoding
 from wrenchd.models.errors import ConfigError, DataError
 from wrenchd.models.estimator.compiled import kernels_in_use
@@ -270,9 +271,11 @@ class ArmRuntime:
                 self.pub_wrench.put(wrench, attachment=self.stamper.next())
             self.latency_us.append((time.perf_counter_ns() - arrived_ns) / 1e3)
             self.last = est
-            # Formatting and writing happen on the log writer thread. A JSON input with its
-            # six names is logged as received; anything else is re-encoded there.
-            if wire_encoding(mark, enc) == "json" and len(msg.name) == len(JOINT_NAMES):
+            # Formatting and writing happen in the log writer process. An input with its six
+            # names is logged as received (JSON made into the message there, little-endian
+            # CDR as it is); anything else is re-encoded there.
+            if len(msg.name) == len(JOINT_NAMES) and (
+                    wire_encoding(mark, enc) == "json" or is_cdr(payload)):
                 record = payload
             else:
                 names = msg.name if len(msg.name) == len(JOINT_NAMES) else JOINT_NAMES

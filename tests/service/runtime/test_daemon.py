@@ -124,6 +124,14 @@ def test_daemon_end_to_end(tmp_path, encoding):
     session_log, info = read_session_report(logs[0])
     assert not info.truncated
     assert len(session_log.joint_states) == published
+    # every input logged with the values the robot sent (CDR stored as received; the
+    # robot's own file keeps its values' mantissas rounded, to 1e-9 relative)
+    sent, _ = read_session_report(next((tmp_path / "robot").glob("*.mcap")))
+    np.testing.assert_array_equal(session_log.joint_states.t, sent.joint_states.t[:published])
+    for field in ("position", "velocity", "effort"):
+        np.testing.assert_allclose(getattr(session_log.joint_states, field),
+                                   getattr(sent.joint_states, field)[:published],
+                                   rtol=1e-9, atol=1e-12)
     topics = read_mcap(logs[0])
     assert len(topics[TOPIC_ESTIMATE]) == published
     assert len(topics[TOPIC_JOINT_STATES]) == published
