@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from wrenchd.adapters.messages import encode_joint_state
+from wrenchd.adapters.messages import check_encoding, decode_wrench, encode_joint_state
 from wrenchd.adapters.zenoh_io import ZenohConfig, open_session
 from wrenchd.service.bench.stages import ENV as STAGES_ENV
 from wrenchd.service.provenance import load_average, steal_ticks, ticks_per_s
@@ -51,8 +51,8 @@ def _free_port() -> int:
 def _config(path: Path, endpoint: str, arms: list[str], log_dir: Path,
             adaptation: bool = True, log: bool = True,
             pin: tuple[list[int], list[int]] | None = None,
-            realtime: int | str = "auto", intake: str = "channel", model: str = "seal"
-            ) -> None:
+            realtime: int | str = "auto", intake: str = "channel", model: str = "seal",
+            encoding: str = "json") -> None:
     lines = ['robot = "external"', "[cpus]", f"realtime_priority = {json.dumps(realtime)}"]
     if pin is not None:
         lines += [f"daemon = {pin[0]}", f"worker = {pin[1]}"]
@@ -60,7 +60,7 @@ def _config(path: Path, endpoint: str, arms: list[str], log_dir: Path,
              f'directory = "{log_dir}"', f"enabled = {str(log).lower()}", "[ring]",
              "capacity = 4000", f'intake = "{intake}"']
     for arm in arms:
-        lines += ["[[arms]]", f'name = "{arm}"', 'encoding = "json"',
+        lines += ["[[arms]]", f'name = "{arm}"', f'encoding = "{encoding}"',
                   f"model = {json.dumps(model)}",
                   "[arms.pipeline.adaptation]", f"enabled = {str(adaptation).lower()}"]
     path.write_text("\n".join(lines) + "\n")
@@ -193,7 +193,7 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
                   log: bool = True, floor: bool = False, pin: bool = False,
                   realtime: int | str = "auto", intake: str = "channel",
                   split_s: float | None = None, stages: bool = False, model: str = "seal",
-                  recording: str | None = None) -> dict[str, Any]:
+                  recording: str | None = None, encoding: str = "json") -> dict[str, Any]:
     """Run the benchmark; returns the result dictionary.
 
     Also samples the daemon's resident memory (with its worker) once a second: the soak run
@@ -216,7 +216,8 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
     time per stage over the whole run, warm-up included (:mod:`wrenchd.service.bench.stages`).
     ``model`` is every arm's step 1 (a shipped name or a bundle directory); ``recording`` (a
     file ``wrenchd replay`` reads) is published in place of the simulator's ``trocar``
-    scenario, from its start again when it ends, at ``rate_hz`` (give its own rate)."""
+    scenario, from its start again when it ends, at ``rate_hz`` (give its own rate).
+    ``encoding`` is the arms' wire encoding (``json`` or ``cdr``), the floor's too."""
     from wrenchd.adapters.sim.scenarios import run_scenario
     from wrenchd.adapters.sim.simulator import SimulatorConfig
 
@@ -237,7 +238,7 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
         js = load_session(recording).joint_states
         m = len(js)
     stamps = [int(round(i * 1e9 / rate_hz)) for i in range(n)]
-    payloads = [encode_joint_state("json", stamps[i], js.names, js.position[i % m],
+    payloads = [encode_joint_state(check_encoding(encoding), stamps[i], js.names, js.position[i % m],
                                    js.velocity[i % m], js.effort[i % m]) for i in range(n)]
     endpoint = f"tcp/127.0.0.1:{_free_port()}"
     workdir = Path(tempfile.mkdtemp(prefix="wrenchd-bench-"))
@@ -251,9 +252,10 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
     if Path(model).exists():                  # a bundle: named from the daemon's workdir
         model = str(Path(model).resolve())
     _config(workdir / "bench.toml", endpoint, arms, workdir / "logs", adaptation, log, placement,
-            realtime, intake, model)
+            realtime, intake, model, encoding)
     command = ([sys.executable, "-m", "wrenchd.service.bench.floor", "--listen", endpoint,
-                "--intake", intake, "--realtime", str(realtime), "--arms", *arms] if floor else
+                "--intake", intake, "--realtime", str(realtime), "--encoding", encoding,
+                "--arms", *arms] if floor else
                [sys.executable, "-m", "wrenchd", "serve", "--config",
                 str(workdir / "bench.toml")])
     env = dict(os.environ)
@@ -373,8 +375,7 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
         lat, got = [], np.zeros(n, dtype=bool)
         lat_at: list[float] = []                          # send time of each latency [s]
         for arrived, payload in received[arm]:
-            m = json.loads(payload)
-            stamp = m["header"]["stamp"]["sec"] * 1_000_000_000 + m["header"]["stamp"]["nanosec"]
+            stamp = decode_wrench(encoding, payload)[0]
             i = index.get(stamp)
             if i is None:
                 continue
@@ -455,7 +456,7 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
             "arms": n_arms, "target_rate_hz": rate_hz, "duration_s": duration_s,
             "warmup_s": warmup_s, "cpu_count": os.cpu_count(),
             "adaptation": adaptation and not floor, "mcap_log": log and not floor,
-            "intake": intake,
+            "intake": intake, "encoding": encoding,
             "daemon": "bench floor (no estimation)" if floor else "wrenchd serve",
             "cpus": ({"daemon": placement[0], "worker_and_bench": placement[1]}
                      if placement else None),

@@ -4,7 +4,8 @@ A stand-in for the daemon with the daemon's plumbing and none of its work: the d
 intake (one :class:`~wrenchd.service.runtime.intake.ChannelIntake` for all arms, or with
 ``--intake callback`` per arm a subscriber whose callback puts the payload in a
 :class:`~wrenchd.service.runtime.plumbing.SampleRing`), one thread that takes the samples,
-reads each joint state's stamp and publishes a zero wrench with that stamp. What ``bench
+reads each joint state's stamp and publishes a zero wrench with that stamp, in the arms'
+encoding (``--encoding``: JSON or CDR). What ``bench
 service`` measures against it is what zenoh on loopback, the hand-off to the thread, the GIL
 and this machine's scheduling cost before any estimation: the part of the daemon's latency
 that no faster estimator can remove.
@@ -17,6 +18,7 @@ before its session opens.
 from __future__ import annotations
 
 import argparse
+import struct
 import sys
 import threading
 
@@ -33,34 +35,52 @@ from wrenchd.service.runtime.scheduling import enter_realtime
 from wrenchd.service.runtime.settings import ArmConfig
 
 _ZERO = np.zeros(6)
+_CDR_STAMP = struct.Struct("<iI")       # sec, nanosec after CDR's 4-byte encapsulation header
 
 
-def _answer(pub, items) -> None:
+def _json_stamp(payload: bytes) -> int | None:
+    try:
+        stamp = orjson.loads(payload)["header"]["stamp"]
+        return stamp["sec"] * 1_000_000_000 + stamp["nanosec"]
+    except (orjson.JSONDecodeError, KeyError, TypeError):
+        return None
+
+
+def _cdr_stamp(payload: bytes) -> int | None:
+    if len(payload) < 12:
+        return None
+    sec, nanosec = _CDR_STAMP.unpack_from(payload, 4)
+    return sec * 1_000_000_000 + nanosec
+
+
+_STAMP_OF = {"json": _json_stamp, "cdr": _cdr_stamp}
+
+
+def _answer(pub, items, encoding: str) -> None:
+    stamp_of = _STAMP_OF[encoding]
     for item in items:
-        try:
-            stamp = orjson.loads(item[1])["header"]["stamp"]
-            stamp_ns = stamp["sec"] * 1_000_000_000 + stamp["nanosec"]
-        except (orjson.JSONDecodeError, KeyError, TypeError):
-            continue
-        pub.put(encode_wrench("json", stamp_ns, _ZERO))
+        stamp_ns = stamp_of(item[1])
+        if stamp_ns is not None:
+            pub.put(encode_wrench(encoding, stamp_ns, _ZERO))
 
 
 def _serve(rings: dict[str, SampleRing], pubs: dict, wake: threading.Event,
-           stop: threading.Event) -> None:
+           stop: threading.Event, encoding: str) -> None:
     while not stop.is_set():
         wake.wait(0.05)
         wake.clear()
         for arm, ring in rings.items():
-            _answer(pubs[arm], ring.drain())
+            _answer(pubs[arm], ring.drain(), encoding)
 
 
-def _serve_channel(intake: ChannelIntake, pubs: dict, stop: threading.Event) -> None:
+def _serve_channel(intake: ChannelIntake, pubs: dict, stop: threading.Event,
+                   encoding: str) -> None:
     while not stop.is_set():
         taken = intake.take()
         if taken is None:
             return
         for pub, items in zip(pubs.values(), taken):
-            _answer(pub, items)
+            _answer(pub, items, encoding)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -68,6 +88,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--listen", required=True, help="zenoh endpoint to listen on")
     parser.add_argument("--arms", nargs="+", default=["PSM1"])
     parser.add_argument("--intake", choices=["channel", "callback"], default="channel")
+    parser.add_argument("--encoding", choices=["json", "cdr"], default="json")
     parser.add_argument("--realtime", type=realtime_setting, default="off",
                         help="as the daemon's [cpus] realtime_priority: auto, off or a "
                              "SCHED_FIFO priority, taken before the session opens so that "
@@ -85,14 +106,16 @@ def main(argv: list[str] | None = None) -> int:
     if args.intake == "channel":
         intake = ChannelIntake(session, [f"dvrk/{arm}/measured_js" for arm in args.arms],
                                4000 * len(args.arms))
-        thread = threading.Thread(target=_serve_channel, args=(intake, pubs, stop), daemon=True)
+        thread = threading.Thread(target=_serve_channel,
+                                  args=(intake, pubs, stop, args.encoding), daemon=True)
     else:
         rings = {arm: SampleRing(4000, wake) for arm in args.arms}
         subs = [session.declare_subscriber(
             f"dvrk/{arm}/measured_js",
             lambda s, ring=rings[arm]: ring.put((0, s.payload.to_bytes())))
             for arm in args.arms]
-        thread = threading.Thread(target=_serve, args=(rings, pubs, wake, stop), daemon=True)
+        thread = threading.Thread(target=_serve,
+                                  args=(rings, pubs, wake, stop, args.encoding), daemon=True)
     thread.start()
     for arm in args.arms:
         print(f"bench floor: {arm} listening", flush=True)

@@ -65,7 +65,7 @@ def bench_inference(duration_s: float = 60.0, seed: int = 3, warmup: int = 500) 
 def run(kind: str, json_path: str | None, duration_s: float, arms: int = 1,
         rate_hz: float = 1000.0, pin: bool = False, realtime: int | str = "auto",
         recording: str | None = None, intake: str = "channel", pairs: int = 2,
-        stages: bool = False, model: str = "seal") -> int:
+        stages: bool = False, model: str = "seal", encoding: str = "json") -> int:
     """Run the bench ``kind``, print its result as JSON (with its provenance) and write it to
     ``json_path`` too when given."""
     os.environ.setdefault("OMP_NUM_THREADS", "1")
@@ -80,13 +80,13 @@ def run(kind: str, json_path: str | None, duration_s: float, arms: int = 1,
         result = bench_service(n_arms=arms, rate_hz=rate_hz, duration_s=duration_s,
                                floor=kind == "floor", pin=pin, realtime=realtime,
                                intake=intake, stages=stages, model=model,
-                               recording=recording)
+                               recording=recording, encoding=encoding)
     elif kind == "ratio":
         from wrenchd.service.bench.ratio import bench_ratio
 
         result = bench_ratio(n_arms=arms, rate_hz=rate_hz, duration_s=duration_s, pairs=pairs,
                              pin=pin, realtime=realtime, intake=intake, model=model,
-                             recording=recording,
+                             recording=recording, encoding=encoding,
                              log=lambda line: print(line, file=sys.stderr, flush=True))
     elif kind == "replay":
         from wrenchd.service.bench.replay import run_replay_bench

@@ -31,7 +31,7 @@ def bench(args: argparse.Namespace) -> int:
         args.duration = DEFAULT_DURATION_S.get(args.kind, 60.0)
     return run(args.kind, args.json, args.duration, args.arms, args.rate, args.pin,
                args.realtime, args.recording, args.intake, args.pairs, args.stages,
-               args.model)
+               args.model, args.encoding)
 
 
 def register(sub) -> None:
@@ -74,6 +74,9 @@ def register(sub) -> None:
     p.add_argument("--intake", choices=["channel", "callback"], default="channel",
                    help="service/soak/floor: how the daemon takes its joint states ([ring] "
                         "intake; default channel, the daemon's default)")
+    p.add_argument("--encoding", choices=["json", "cdr"], default="json",
+                   help="service/soak/floor/ratio: the arms' wire encoding (default json; cdr "
+                        "is what a ROS 2 robot publishes)")
     p.add_argument("--stages", action="store_true",
                    help="service/soak: also the daemon estimation thread's CPU time per stage "
                         "(decode, estimate, gate, publish...; a timer on every call makes the "

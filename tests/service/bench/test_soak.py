@@ -5,6 +5,8 @@ import math
 import tomllib
 from pathlib import Path
 
+import pytest
+
 from wrenchd.service.bench.daemon_latency import _config, bench_service
 
 
@@ -19,10 +21,22 @@ def test_short_soak_drops_nothing_and_reports_memory():
     assert "stages" not in r                            # nothing timed unless asked
 
 
-def test_the_floor_bench_answers_every_joint_state_without_estimating():
-    """bench floor: the same bench against the daemon's plumbing alone (two arms)."""
-    r = bench_service(n_arms=2, rate_hz=200.0, duration_s=3.0, warmup_s=1.0, floor=True)
+def test_the_daemon_bench_in_cdr_gets_every_wrench_back():
+    """bench service --encoding cdr: the robot side publishes ROS 2 CDR joint states, the
+    daemon's arms read and answer CDR, and every wrench is matched by its stamp."""
+    r = bench_service(n_arms=1, rate_hz=200.0, duration_s=2.0, warmup_s=1.0, encoding="cdr")
+    assert r["encoding"] == "cdr" and r["dropped"] == 0
+    assert r["per_arm"]["PSM1"]["received"] == 600
+
+
+@pytest.mark.parametrize("encoding", ["json", "cdr"])
+def test_the_floor_bench_answers_every_joint_state_without_estimating(encoding):
+    """bench floor: the same bench against the daemon's plumbing alone (two arms), in either
+    wire encoding."""
+    r = bench_service(n_arms=2, rate_hz=200.0, duration_s=3.0, warmup_s=1.0, floor=True,
+                      encoding=encoding)
     assert r["daemon"].startswith("bench floor") and r["dropped"] == 0
+    assert r["encoding"] == encoding
     assert [a["received"] for a in r["per_arm"].values()] == [800, 800]
     assert math.isfinite(r["e2e_p99_us"]) and r["daemon_cpu_us_per_sample"] > 0
 
