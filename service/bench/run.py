@@ -73,7 +73,8 @@ def run(kind: str, json_path: str | None, duration_s: float, arms: int = 1,
     if kind == "inference":
         result = bench_inference(duration_s=duration_s)
     elif kind == "arm":
-        result = bench_arm_thread(duration_s=duration_s, model=model, recording=recording)
+        result = bench_arm_thread(duration_s=duration_s, model=model, recording=recording,
+                                  encoding=encoding)
     elif kind in ("service", "soak", "floor"):
         from wrenchd.service.bench.daemon_latency import bench_service
 
@@ -115,11 +116,11 @@ PACED_BLOCK = 500
 
 
 def bench_arm_thread(duration_s: float = 20.0, model: str = "seal",
-                     recording: str | None = None) -> dict:
-    """Per-sample cost of the daemon's work for one arm, without zenoh: decode the JSON joint
-    state, run the pipeline (frozen: no adaptation rounds), encode the wrench, hand both log
-    records to the log writer (``log``); and, apart (``log_writer``), the log writer
-    process's work: format and write them to MCAP. Percentiles per stage [us], one ``trocar``
+                     recording: str | None = None, encoding: str = "json") -> dict:
+    """Per-sample cost of the daemon's work for one arm, without zenoh: decode the joint
+    state (``encoding``: JSON or CDR), run the pipeline (frozen: no adaptation rounds),
+    encode the wrench, hand both log records to the log writer (``log``); and, apart
+    (``log_writer``), the log writer process's work: format and write them to MCAP. Percentiles per stage [us], one ``trocar``
     session at 200 Hz, or ``recording`` (a file ``wrenchd replay`` reads) played again until
     it lasts ``duration_s``; step 1 ``model`` (a shipped name or a bundle directory, as the
     daemon's ``[model] step1``).
@@ -140,7 +141,7 @@ def bench_arm_thread(duration_s: float = 20.0, model: str = "seal",
     from wrenchd.adapters.messages import decode_joint_state, encode_joint_state, encode_wrench
     from wrenchd.adapters.sim.scenarios import run_scenario
     from wrenchd.service.pipeline.step1 import load_free_space
-    from wrenchd.service.runtime.arm import estimate_payload
+    from wrenchd.service.runtime.arm import estimate_payload, joint_state_payload
     from wrenchd.service.pipeline import ArmPipeline, PipelineConfig, PolicyConfig
 
     if recording is None:
@@ -152,8 +153,10 @@ def bench_arm_thread(duration_s: float = 20.0, model: str = "seal",
         span = float(once.t[-1] - once.t[0]) if len(once) > 1 else 0.0
         times = max(1, math.ceil(duration_s / span)) if span > 0 else 1
         js = load_session(f"concat:{recording}*{times}").joint_states
-    payloads = [encode_joint_state("json", int(round(js.t[i] * 1e9)), js.names, js.position[i],
-                                   js.velocity[i], js.effort[i]) for i in range(len(js))]
+    payloads = [encode_joint_state(encoding, int(round(js.t[i] * 1e9)), js.names,
+                                   js.position[i], js.velocity[i], js.effort[i])
+                for i in range(len(js))]
+    extra = encoding == "json"
     pipeline = ArmPipeline("PSM1", load_free_space(model),
                            PipelineConfig(policy=PolicyConfig(name="frozen")))
     # the daemon's own work per sample (decode, pipeline, wrench encode, hand-over to the log
@@ -178,14 +181,16 @@ def bench_arm_thread(duration_s: float = 20.0, model: str = "seal",
                 next_t = time.perf_counter()
             c0 = time.thread_time()
             t0 = time.perf_counter()
-            msg = decode_joint_state("json", payload)
+            msg = decode_joint_state(encoding, payload)
             t1 = time.perf_counter()
             est, _ = pipeline.process(msg)
             t2 = time.perf_counter()
-            encode_wrench("json", est.stamp_ns, est.wrench, "psm_base",
-                          {"free": est.free, "model_version": est.model_version})
+            encode_wrench(encoding, est.stamp_ns, est.wrench, "psm_base",
+                          {"free": est.free, "model_version": est.model_version,
+                           "score": min(est.score, 1e9)} if extra else None)
             t3 = time.perf_counter()
-            queue.append((0, TOPIC_JOINT_STATES, est.stamp_ns, payload))
+            queue.append((0, TOPIC_JOINT_STATES, est.stamp_ns,
+                          joint_state_payload(payload, msg, encoding)))
             queue.append((0, TOPIC_ESTIMATE, est.stamp_ns, estimate_payload(est)))
             t4 = time.perf_counter()
             while queue:
@@ -209,7 +214,7 @@ def bench_arm_thread(duration_s: float = 20.0, model: str = "seal",
                 "total_p99_us": round(float(np.percentile(total, 99)), 1),
                 "log_writer_p50_us": round(float(np.percentile(writer, 50)), 1),
                 "log_writer_p99_us": round(float(np.percentile(writer, 99)), 1),
-                "samples": len(payloads), "threads": 1})
+                "samples": len(payloads), "threads": 1, "encoding": encoding})
     for mode, (wall, cpu) in modes.items():
         if wall:
             out[mode] = {"wall_p50_us": round(float(np.percentile(wall, 50)), 1),

@@ -75,8 +75,8 @@ def register(sub) -> None:
                    help="service/soak/floor: how the daemon takes its joint states ([ring] "
                         "intake; default channel, the daemon's default)")
     p.add_argument("--encoding", choices=["json", "cdr"], default="json",
-                   help="service/soak/floor/ratio: the arms' wire encoding (default json; cdr "
-                        "is what a ROS 2 robot publishes)")
+                   help="arm, service, soak, floor, ratio: the arms' wire encoding (default "
+                        "json; cdr is what a ROS 2 robot publishes)")
     p.add_argument("--stages", action="store_true",
                    help="service/soak: also the daemon estimation thread's CPU time per stage "
                         "(decode, estimate, gate, publish...; a timer on every call makes the "

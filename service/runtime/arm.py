@@ -43,6 +43,17 @@ def estimate_payload(est: Estimate, frame_id: str = "psm_base") -> tuple[str, tu
                          est.external_torque.tolist()))
 
 
+def joint_state_payload(payload: bytes, msg, encoding: str) -> bytes | tuple[str, tuple]:
+    """The ``/joint_states`` log record of an estimated input ``payload`` (decoded: ``msg``,
+    a :class:`~wrenchd.models.series.JointSample`; received in ``encoding``): one with its six
+    names as received (JSON is made into the message by the log writer, little-endian CDR is
+    that message already), anything else re-encoded there, with the default names."""
+    if len(msg.name) == len(JOINT_NAMES) and (encoding == "json" or is_cdr(payload)):
+        return payload
+    names = msg.name if len(msg.name) == len(JOINT_NAMES) else JOINT_NAMES
+    return ("joint_state", (msg.stamp_ns, list(names), msg.position.tolist(),
+                            msg.velocity.tolist(), msg.effort.tolist(), msg.frame_id))
+
 
 class ArmRuntime:
     """One arm's subscriber, ring, estimation thread, publishers, queryable, token and log."""
@@ -271,18 +282,9 @@ class ArmRuntime:
                 self.pub_wrench.put(wrench, attachment=self.stamper.next())
             self.latency_us.append((time.perf_counter_ns() - arrived_ns) / 1e3)
             self.last = est
-            # Formatting and writing happen in the log writer process. An input with its six
-            # names is logged as received (JSON made into the message there, little-endian
-            # CDR as it is); anything else is re-encoded there.
-            if len(msg.name) == len(JOINT_NAMES) and (
-                    wire_encoding(mark, enc) == "json" or is_cdr(payload)):
-                record = payload
-            else:
-                names = msg.name if len(msg.name) == len(JOINT_NAMES) else JOINT_NAMES
-                record = ("joint_state", (est.stamp_ns, list(names), msg.position.tolist(),
-                                          msg.velocity.tolist(), msg.effort.tolist(),
-                                          msg.frame_id))
-            self._log(TOPIC_JOINT_STATES, est.stamp_ns, record)
+            # formatting and writing happen in the log writer process
+            self._log(TOPIC_JOINT_STATES, est.stamp_ns,
+                      joint_state_payload(payload, msg, wire_encoding(mark, enc)))
             self._log(TOPIC_ESTIMATE, est.stamp_ns, estimate_payload(est, self.cfg.frame_id))
             if self.live is not None:             # live view: decimated, never raises
                 self.live.estimate(est)

@@ -15,7 +15,8 @@ from tests.adapters.float64_log import write_float64_daemon_log
 from tests.adapters.json_mcap import write_json_daemon_log
 from wrenchd.adapters import ros2_msgs as ros2
 from wrenchd.adapters.mcap_log import (TOPIC_ESTIMATE, TOPIC_EVENTS, TOPIC_STATUS, TOPIC_TYPES,
-                                       LogConfig, McapLog, estimate_record, message_fields)
+                                       LogConfig, McapLog, estimate_record, format_record,
+                                       message_fields)
 from wrenchd.adapters.mcap_session import TOPIC_JOINT_STATES
 from wrenchd.adapters.mcap_session_reader import read_session_report
 from wrenchd.adapters.messages import decode_joint_state, encode_joint_state
@@ -200,3 +201,31 @@ def test_the_ros2_log_is_smaller_than_the_former_logs(tmp_path):
     new_bps, f64_bps, json_bps = (p.stat().st_size / n for p in (log.path, old_f64, old_json))
     assert new_bps < 0.85 * f64_bps < 0.85 * json_bps, (new_bps, f64_bps, json_bps)
     assert new_bps < 220, new_bps                        # 195, 245 and 280 B here
+
+
+def test_the_daemon_logs_an_input_with_six_names_as_received(tmp_path):
+    """The ``/joint_states`` record the daemon hands over: a JSON or little-endian CDR input
+    with its six names as received, one without names re-encoded with the default names;
+    either way the log holds the values exactly."""
+    from wrenchd.service.runtime.arm import joint_state_payload
+
+    q = np.array([0.1, -1 / 3, np.pi, 1e-17, 2.0**-40, -7.123456789012345])
+    log = McapLog("PSM1", LogConfig(directory=str(tmp_path)))
+    sent = [("json", encode_joint_state("json", 5, JOINT_NAMES, q, q, q, "base")),
+            ("cdr", encode_joint_state("cdr", 10, JOINT_NAMES, q, q, q, "base")),
+            ("cdr", encode_joint_state("cdr", 15, [], q, q, q, "base"))]
+    records = []
+    for encoding, payload in sent:
+        record = joint_state_payload(payload, decode_joint_state(encoding, payload), encoding)
+        records.append(record)
+        assert log.write(TOPIC_JOINT_STATES, decode_joint_state(encoding, payload).stamp_ns,
+                         format_record(record))
+    assert records[0] is sent[0][1] and records[1] is sent[1][1]
+    assert records[2][0] == "joint_state"                   # no names: made again
+    log.close()
+    with open(log.path, "rb") as f:
+        stored = [decode_joint_state("cdr", m.data) for _, _, m in make_reader(f).iter_messages()]
+    assert [m.stamp_ns for m in stored] == [5, 10, 15]
+    assert all(m.name == JOINT_NAMES for m in stored)
+    for m in stored:
+        np.testing.assert_array_equal(m.position, q)
