@@ -1,14 +1,15 @@
-"""The daemon's two hot-path CDR messages in a few ``struct`` calls.
+"""The per-sample CDR messages in a few ``struct`` calls.
 
 Every sample the daemon decodes a ``sensor_msgs/JointState`` and encodes a
-``geometry_msgs/WrenchStamped``. The ``rosbags`` type store
-(:mod:`wrenchd.adapters.ros2_msgs`) does either through its generic, generated code and a
-dataclass per nested message: about 22 us and 11 us a sample on a 2-core EPYC, as much as the
-floor's whole plumbing. These fast paths read and write the same bytes for the common case
-and answer ``None`` for anything else (big-endian data, an empty vector, a stamp out of range,
-text that is not UTF-8, bytes left over), where the caller goes back to ``rosbags``: every
-refusal and its reason stay the library's. The tests hold both to ``rosbags`` on random and
-on corrupted messages.
+``geometry_msgs/WrenchStamped``, and its log writer encodes a ``wrenchd_msgs/msg/Estimate``
+(and a joint state that did not arrive as CDR). The ``rosbags`` type store
+(:mod:`wrenchd.adapters.ros2_msgs`) does each through its generic, generated code and a
+dataclass per nested message: 9-17 us a message on a 2-core EPYC, against the floor's
+whole plumbing of 30-200 us a sample. These fast paths read and write the same bytes for the
+common case and answer ``None`` for anything else (big-endian data, an empty vector, a stamp
+out of range, text that is not UTF-8, bytes left over), where the caller goes back to
+``rosbags``: every refusal and its reason stay the library's. The tests hold both to
+``rosbags`` on random and on corrupted messages.
 
 The layout is the ROS 2 one: a 4-byte encapsulation header (``00 01 00 00``, little-endian
 CDR), then the fields, each aligned to its own size counted from the end of that header;
@@ -161,3 +162,85 @@ def encode_wrench_stamped(stamp_ns: int, frame_id: str, wrench) -> bytes | None:
     if len(values) != 6:
         return None
     return packer.pack(_HEAD, sec, nanosec, len(text) + 1, text, *values)
+
+
+@functools.lru_cache(maxsize=64)
+def _joint_state_layout(frame_id: str, names: tuple[str, ...], n: int
+                        ) -> tuple[bytes, struct.Struct] | None:
+    """What follows the stamp in a JointState with this frame id and these names, up to its
+    first value, and the packer of its ``3 n`` values (with the counts between them)."""
+    out = bytearray()
+
+    def pad(size: int) -> None:               # the frame id's length is at offset 8
+        out.extend(bytes(-(8 + len(out)) % size))
+
+    try:
+        texts = [frame_id.encode()] + [name.encode() for name in names]
+    except UnicodeEncodeError:
+        return None
+    for k, text in enumerate(texts):
+        if k == 1:
+            pad(4)
+            out += _U32.pack(len(names))
+        pad(4)
+        out += _U32.pack(len(text) + 1) + text + b"\x00"
+    if not names:
+        pad(4)
+        out += _U32.pack(0)
+    pad(4)
+    out += _U32.pack(n)
+    pad(8)
+    return bytes(out), struct.Struct(f"<{n}dI4x{n}dI4x{n}d")
+
+
+def encode_joint_state(stamp_ns: int, frame_id: str, names, position, velocity,
+                       effort) -> bytes | None:
+    """Little-endian CDR of a ``sensor_msgs/JointState`` whose three vectors have one
+    non-zero length (``names`` as many or none), the bytes ``rosbags`` writes; None where it
+    should decide."""
+    sec, nanosec = divmod(stamp_ns, _NS_PER_S)
+    arrays = [np.asarray(v, dtype=np.float64) for v in (position, velocity, effort)]
+    n = len(arrays[0]) if arrays[0].ndim == 1 else 0
+    names = tuple(names)
+    if (not 0 <= sec < 2 ** 31 or n == 0 or arrays[1].shape != (n,) or arrays[2].shape != (n,)
+            or not all(type(name) is str for name in names)):
+        return None
+    values = [a.tolist() for a in arrays]
+    layout = _joint_state_layout(frame_id, names, n)
+    if layout is None:
+        return None
+    prefix, packer = layout
+    return (_HEAD + _STAMP.pack(sec, nanosec) + prefix
+            + packer.pack(*values[0], n, *values[1], n, *values[2]))
+
+
+@functools.lru_cache(maxsize=32)
+def _estimate_layout(frame_id: str) -> tuple[struct.Struct, bytes] | None:
+    """The packer of a ``wrenchd_msgs/msg/Estimate`` with this frame id, and the id's bytes."""
+    try:
+        text = frame_id.encode()
+    except UnicodeEncodeError:
+        return None
+    at = 12 + len(text) + 1                   # after the frame id, from the end of the head
+    pads = []
+    for size, align in ((24, 4), (1, 1), (4, 4), (8, 8), (1, 1), (24, 4)):
+        pads.append(-at % align)              # force and torque, free, score, version,
+        at += pads[-1] + size                 # restarted, external
+    p = pads
+    return struct.Struct(f"<4siII{len(text) + 1}s{p[0]}x24s?{p[2]}xf{p[3]}xq?{p[5]}x24s"), text
+
+
+def encode_estimate(stamp_ns: int, frame_id: str, wrench32: np.ndarray, free: bool,
+                    score: float, model_version: int, restarted: bool,
+                    external32: np.ndarray) -> bytes | None:
+    """Little-endian CDR of a ``wrenchd_msgs/msg/Estimate`` (``wrench32`` (6,) and
+    ``external32`` (6,) float32, ``score`` within float32), the bytes ``rosbags`` writes;
+    None where it should decide."""
+    sec, nanosec = divmod(stamp_ns, _NS_PER_S)
+    layout = _estimate_layout(frame_id)
+    if layout is None or not 0 <= sec < 2 ** 31 or not -2 ** 63 <= model_version < 2 ** 63:
+        return None
+    packer, text = layout
+    return packer.pack(_HEAD, sec, nanosec, len(text) + 1, text,
+                       wrench32.astype("<f4").tobytes(), free, score, model_version,
+                       restarted, external32.astype("<f4").tobytes())

@@ -38,6 +38,7 @@ from mcap.well_known import MessageEncoding, Profile
 from mcap.writer import CompressionType, Writer
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from wrenchd.adapters import cdr_wire
 from wrenchd.adapters import ros2_msgs as ros2
 from wrenchd.adapters.mcap_session import SESSION_FORMAT, SESSION_METADATA_NAME, TOPIC_JOINT_STATES
 from wrenchd.models.errors import DataError
@@ -71,6 +72,10 @@ def estimate_record(stamp_ns: int, frame_id: str, wrench: np.ndarray, free: bool
     score = float(score)
     score = min(score, 1e9) if math.isfinite(score) else 1e9
     w32 = w.astype(np.float32)
+    fast = cdr_wire.encode_estimate(stamp_ns, frame_id, w32, bool(free), score,
+                                    int(model_version), bool(restarted), torque)
+    if fast is not None:
+        return fast
     return ros2.serialize(ros2.message_class(ros2.ESTIMATE)(
         header=ros2.header(stamp_ns, frame_id), force=w32[:3], torque=w32[3:],
         free=bool(free), score=score, model_version=int(model_version),
@@ -80,6 +85,9 @@ def estimate_record(stamp_ns: int, frame_id: str, wrench: np.ndarray, free: bool
 def joint_state_record(stamp_ns: int, names, position, velocity, effort,
                        frame_id: str = "") -> bytes:
     """One ``/psm/measured_js`` message (``sensor_msgs/msg/JointState``, CDR)."""
+    fast = cdr_wire.encode_joint_state(stamp_ns, frame_id, names, position, velocity, effort)
+    if fast is not None:
+        return fast
     return ros2.serialize(ros2.message_class(ros2.JOINT_STATE)(
         header=ros2.header(stamp_ns, frame_id), name=[str(n) for n in names],
         position=np.asarray(position, dtype=np.float64),

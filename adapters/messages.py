@@ -169,6 +169,9 @@ def _decode_json_wrench(payload: bytes) -> tuple[int, str, np.ndarray, dict[str,
 
 # -- CDR ----------------------------------------------------------------------------------
 def _cdr_joint_state(stamp_ns: int, frame_id: str, names, position, velocity, effort) -> bytes:
+    fast = cdr_wire.encode_joint_state(stamp_ns, frame_id, names, position, velocity, effort)
+    if fast is not None:
+        return fast
     return ros2.serialize(ros2.message_class(JOINT_STATE_TYPE)(
         header=ros2.header(stamp_ns, frame_id), name=list(names),
         position=np.asarray(position, dtype=np.float64),

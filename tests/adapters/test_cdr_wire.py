@@ -1,6 +1,7 @@
 """The per-sample CDR fast paths (:mod:`wrenchd.adapters.cdr_wire`) held to ``rosbags``.
 
-Encoding: the same bytes as ``rosbags`` for any stamp, frame id and wrench. Decoding: on valid
+Encoding: the same bytes as ``rosbags`` for any stamp, frame id, names and values (wrench,
+joint state, estimate). Decoding: on valid
 messages of every shape, the same fields; on corrupted ones (truncated, extended, a byte or a
 length field overwritten), either no answer (``rosbags`` then decides, refusal included) or
 the answer ``rosbags`` gives. The second message of a stream, read through the layout the
@@ -64,6 +65,48 @@ def test_wrench_out_of_range_is_left_to_rosbags():
     assert cdr_wire.encode_wrench_stamped(-1, "f", np.zeros(6)) is None
     assert cdr_wire.encode_wrench_stamped(0, "\ud800", np.zeros(6)) is None  # no UTF-8
     assert cdr_wire.encode_wrench_stamped(0, "f", np.zeros(5)) is None
+
+
+def _rosbags_joint_state_bytes(stamp_ns, frame_id, names, position, velocity, effort):
+    return ros2.serialize(ros2.message_class(ros2.JOINT_STATE)(
+        header=ros2.header(stamp_ns, frame_id), name=list(names),
+        position=np.asarray(position, dtype=np.float64),
+        velocity=np.asarray(velocity, dtype=np.float64),
+        effort=np.asarray(effort, dtype=np.float64)))
+
+
+@FUZZ
+@given(stamps, texts, st.integers(1, 8), st.data())
+def test_joint_state_bytes_are_rosbags_bytes(stamp_ns, frame_id, n, data):
+    names = data.draw(st.one_of(st.just([]), st.lists(texts, min_size=n, max_size=n)))
+    values = [data.draw(st.lists(floats, min_size=n, max_size=n)) for _ in range(3)]
+    fast = cdr_wire.encode_joint_state(stamp_ns, frame_id, names, *values)
+    assert fast == _rosbags_joint_state_bytes(stamp_ns, frame_id, names, *values)
+
+
+def test_joint_states_it_cannot_write_are_left_to_rosbags():
+    one = np.zeros(1)
+    assert cdr_wire.encode_joint_state(0, "", [], [], [], []) is None
+    assert cdr_wire.encode_joint_state(0, "", [], one, np.zeros(2), one) is None
+    assert cdr_wire.encode_joint_state(0, "", [], np.zeros((1, 1)), one, one) is None
+    assert cdr_wire.encode_joint_state(0, "", [np.str_("a")], one, one, one) is None
+    assert cdr_wire.encode_joint_state(-1, "", [], one, one, one) is None
+
+
+@FUZZ
+@given(stamps, texts, st.lists(floats, min_size=12, max_size=12), st.booleans(),
+       st.floats(0.0, 1e9), st.integers(-(2 ** 63), 2 ** 63 - 1), st.booleans())
+def test_estimate_bytes_are_rosbags_bytes(stamp_ns, frame_id, values, free, score, version,
+                                          restarted):
+    with np.errstate(over="ignore"):
+        wrench = np.array(values[:6]).astype(np.float32)
+        external = np.array(values[6:]).astype(np.float32)
+    fast = cdr_wire.encode_estimate(stamp_ns, frame_id, wrench, free, score, version,
+                                    restarted, external)
+    assert fast == ros2.serialize(ros2.message_class(ros2.ESTIMATE)(
+        header=ros2.header(stamp_ns, frame_id), force=wrench[:3], torque=wrench[3:],
+        free=free, score=score, model_version=version, restarted=restarted,
+        external=external))
 
 
 @st.composite
