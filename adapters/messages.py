@@ -135,10 +135,19 @@ def _json_joint_state(stamp_ns: int, frame_id: str, names, position, velocity, e
                          "effort": _finite_vector(effort, "effort")}, option=_NUMPY)
 
 
+def _finite_floats(values, what: str) -> list[float]:
+    """``values`` as Python floats, all finite (a finite sum proves every term finite: one
+    call per sample instead of NumPy's test)."""
+    f = np.asarray(values, dtype=np.float64).ravel().tolist()
+    if not math.isfinite(sum(f)) and not all(map(math.isfinite, f)):
+        raise ValueError(f"{what} must be finite to be encoded as JSON")
+    return f
+
+
 def _json_wrench(stamp_ns: int, frame_id: str, wrench: np.ndarray,
                  extra: dict[str, Any] | None) -> bytes:
     sec, nanosec = split_ns(stamp_ns)
-    f = _finite_vector(wrench, "a wrench").tolist()
+    f = _finite_floats(wrench, "a wrench")
     message = {"header": {"stamp": {"sec": sec, "nanosec": nanosec}, "frame_id": frame_id},
                "wrench": {"force": {"x": f[0], "y": f[1], "z": f[2]},
                           "torque": {"x": f[3], "y": f[4], "z": f[5]}}}

@@ -95,3 +95,13 @@ def test_setup_change_round_trip_and_refusals():
             (json.dumps({"note": "x" * 201}).encode(), "note")]:
         with pytest.raises(DataError, match=reason):
             decode_setup_change(payload)
+
+
+def test_a_json_wrench_is_finite_or_refused():
+    """JSON has no NaN or infinity: such a wrench is refused by name; a finite one whose
+    values' sum overflows is still written, exactly."""
+    huge = np.array([1e308, 1e308, 0.0, 0.0, 0.0, -1e308])
+    np.testing.assert_array_equal(decode_wrench("json", encode_wrench("json", 5, huge))[2], huge)
+    for bad in (np.nan, np.inf, -np.inf):
+        with pytest.raises(ValueError, match="a wrench must be finite"):
+            encode_wrench("json", 5, np.array([0.0, 0.0, bad, 0.0, 0.0, 0.0]))
