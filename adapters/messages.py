@@ -48,6 +48,7 @@ def stamp_ns_of(t_s: float) -> int:
 
 # -- JSON ---------------------------------------------------------------------------------
 _NUMBER_TYPES = frozenset((int, float))
+_STR_TYPE = frozenset((str,))           # JSON text parses to exact str, never a subclass
 
 
 def _vector(message: dict[str, Any], field: str) -> list:
@@ -112,7 +113,7 @@ def _decode_json_joint_state(payload: bytes) -> JointSample:
     message = _json_object(payload, "joint state")
     stamp_ns, frame = _header(message)
     names = message.get("name", [])
-    if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
+    if not isinstance(names, list) or not _STR_TYPE.issuperset(map(type, names)):
         raise DataError("field 'name' must be a list of strings")
     return JointSample(stamp_ns, frame, tuple(names), *_arrays(
         _vector(message, "position"), _vector(message, "velocity"), _vector(message, "effort")))

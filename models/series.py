@@ -68,6 +68,13 @@ class JointSample:
     velocity: np.ndarray
     effort: np.ndarray
 
+    def __init__(self, stamp_ns: int, frame_id: str, name: tuple[str, ...],
+                 position: np.ndarray, velocity: np.ndarray, effort: np.ndarray) -> None:
+        # One per sample: a dict update instead of the generated frozen __init__'s
+        # object.__setattr__ per field; immutable all the same.
+        self.__dict__.update(stamp_ns=stamp_ns, frame_id=frame_id, name=name,
+                             position=position, velocity=velocity, effort=effort)
+
     @property
     def t(self) -> float:
         """Stamp [s]."""
