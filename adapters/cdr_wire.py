@@ -32,6 +32,30 @@ _NS_PER_S = 1_000_000_000
 _F64 = np.dtype("<f8")
 
 
+def _utf8(text: str) -> bytes | None:
+    try:
+        return text.encode()
+    except UnicodeEncodeError:             # a lone surrogate
+        return None
+
+
+def _split_stamp(stamp_ns: int) -> tuple[int, int] | None:
+    """``(sec, nanosec)`` of a stamp ``builtin_interfaces/Time`` holds, else None."""
+    sec, nanosec = divmod(stamp_ns, _NS_PER_S)
+    return (sec, nanosec) if 0 <= sec < 2 ** 31 else None
+
+
+def read_stamp(data: bytes) -> int | None:
+    """The header stamp [ns] of a little-endian CDR message that starts with a
+    ``std_msgs/Header`` (a joint state, a wrench), or None."""
+    if len(data) < 16 or data[:4] != _HEAD:
+        return None
+    sec, nanosec = _STAMP.unpack_from(data, 4)
+    if sec < 0 or nanosec >= _NS_PER_S:
+        return None
+    return sec * _NS_PER_S + nanosec
+
+
 def _text(data: bytes, pos: int) -> tuple[str, int] | None:
     """The CDR string at ``pos`` (already 4-aligned) and the offset after it, or None."""
     if pos + 4 > len(data):
@@ -118,32 +142,26 @@ def decode_joint_state(data: bytes) -> tuple[int, str, tuple[str, ...], np.ndarr
     A stream's messages differ only in their stamp and values: once one has been read field
     by field, the next of the same length and the same frame id, names and count is read as
     one block of doubles (the counts between its vectors checked)."""
-    if len(data) < 16 or data[:4] != _HEAD:
+    stamp_ns = read_stamp(data)
+    if stamp_ns is None:
         return None
-    sec, nanosec = _STAMP.unpack_from(data, 4)
-    if sec < 0 or nanosec >= _NS_PER_S:
-        return None
-    stamp_ns = sec * _NS_PER_S + nanosec
     layout = _LAYOUTS.get(len(data))
-    if layout is None or data[12:12 + len(layout.key)] != layout.key:
-        parsed = _parse_joint_state(data)
-        return None if parsed is None else (stamp_ns, *parsed)
-    n = layout.n
-    block = np.frombuffer(data, _F64, 3 * n + 2, 12 + len(layout.key)).copy()
-    counts = block.view("<u4")
-    if counts[2 * n] != n or counts[4 * n + 2] != n:
-        parsed = _parse_joint_state(data)
-        return None if parsed is None else (stamp_ns, *parsed)
-    return (stamp_ns, layout.frame_id, layout.names, block[:n], block[n + 1:2 * n + 1],
-            block[2 * n + 2:])
+    if layout is not None and data[12:12 + len(layout.key)] == layout.key:
+        n = layout.n
+        block = np.frombuffer(data, _F64, 3 * n + 2, 12 + len(layout.key)).copy()
+        counts = block.view("<u4")
+        if counts[2 * n] == n and counts[4 * n + 2] == n:
+            return (stamp_ns, layout.frame_id, layout.names, block[:n],
+                    block[n + 1:2 * n + 1], block[2 * n + 2:])
+    parsed = _parse_joint_state(data)
+    return None if parsed is None else (stamp_ns, *parsed)
 
 
 @functools.lru_cache(maxsize=32)
 def _wrench_layout(frame_id: str) -> tuple[struct.Struct, bytes] | None:
     """The packer of a WrenchStamped with this frame id, and the id's bytes."""
-    try:
-        text = frame_id.encode()
-    except UnicodeEncodeError:
+    text = _utf8(frame_id)
+    if text is None:
         return None
     size = len(text) + 1
     pad = -(12 + size) % 8                  # the force's doubles start 8-aligned
@@ -153,15 +171,13 @@ def _wrench_layout(frame_id: str) -> tuple[struct.Struct, bytes] | None:
 def encode_wrench_stamped(stamp_ns: int, frame_id: str, wrench) -> bytes | None:
     """Little-endian CDR of a ``geometry_msgs/WrenchStamped`` (``wrench``: six values, force
     then torque), the bytes ``rosbags`` writes; None where it should decide."""
-    sec, nanosec = divmod(stamp_ns, _NS_PER_S)
+    stamp = _split_stamp(stamp_ns)
     layout = _wrench_layout(frame_id)
-    if layout is None or not 0 <= sec < 2 ** 31:
+    values = wrench.tolist() if isinstance(wrench, np.ndarray) else list(wrench)
+    if stamp is None or layout is None or len(values) != 6:
         return None
     packer, text = layout
-    values = wrench.tolist() if isinstance(wrench, np.ndarray) else list(wrench)
-    if len(values) != 6:
-        return None
-    return packer.pack(_HEAD, sec, nanosec, len(text) + 1, text, *values)
+    return packer.pack(_HEAD, *stamp, len(text) + 1, text, *values)
 
 
 @functools.lru_cache(maxsize=64)
@@ -169,27 +185,21 @@ def _joint_state_layout(frame_id: str, names: tuple[str, ...], n: int
                         ) -> tuple[bytes, struct.Struct] | None:
     """What follows the stamp in a JointState with this frame id and these names, up to its
     first value, and the packer of its ``3 n`` values (with the counts between them)."""
+    texts = [_utf8(text) for text in (frame_id, *names)]
+    if None in texts:
+        return None
     out = bytearray()
 
-    def pad(size: int) -> None:               # the frame id's length is at offset 8
-        out.extend(bytes(-(8 + len(out)) % size))
+    def put(word: int, text: bytes = b"", align: int = 4) -> None:
+        out.extend(bytes(-(8 + len(out)) % 4))          # the frame id's length is at 8
+        out.extend(_U32.pack(word) + text)
+        out.extend(bytes(-(8 + len(out)) % align))
 
-    try:
-        texts = [frame_id.encode()] + [name.encode() for name in names]
-    except UnicodeEncodeError:
-        return None
-    for k, text in enumerate(texts):
-        if k == 1:
-            pad(4)
-            out += _U32.pack(len(names))
-        pad(4)
-        out += _U32.pack(len(text) + 1) + text + b"\x00"
-    if not names:
-        pad(4)
-        out += _U32.pack(0)
-    pad(4)
-    out += _U32.pack(n)
-    pad(8)
+    put(len(texts[0]) + 1, texts[0] + b"\x00")          # the frame id
+    put(len(names))
+    for text in texts[1:]:
+        put(len(text) + 1, text + b"\x00")
+    put(n, align=8)                                     # the first count; doubles follow
     return bytes(out), struct.Struct(f"<{n}dI4x{n}dI4x{n}d")
 
 
@@ -198,35 +208,32 @@ def encode_joint_state(stamp_ns: int, frame_id: str, names, position, velocity,
     """Little-endian CDR of a ``sensor_msgs/JointState`` whose three vectors have one
     non-zero length (``names`` as many or none), the bytes ``rosbags`` writes; None where it
     should decide."""
-    sec, nanosec = divmod(stamp_ns, _NS_PER_S)
+    stamp = _split_stamp(stamp_ns)
     arrays = [np.asarray(v, dtype=np.float64) for v in (position, velocity, effort)]
     n = len(arrays[0]) if arrays[0].ndim == 1 else 0
     names = tuple(names)
-    if (not 0 <= sec < 2 ** 31 or n == 0 or arrays[1].shape != (n,) or arrays[2].shape != (n,)
+    if (stamp is None or n == 0 or arrays[1].shape != (n,) or arrays[2].shape != (n,)
             or not all(type(name) is str for name in names)):
         return None
-    values = [a.tolist() for a in arrays]
     layout = _joint_state_layout(frame_id, names, n)
     if layout is None:
         return None
     prefix, packer = layout
-    return (_HEAD + _STAMP.pack(sec, nanosec) + prefix
-            + packer.pack(*values[0], n, *values[1], n, *values[2]))
+    p, v, e = (a.tolist() for a in arrays)
+    return _HEAD + _STAMP.pack(*stamp) + prefix + packer.pack(*p, n, *v, n, *e)
 
 
 @functools.lru_cache(maxsize=32)
 def _estimate_layout(frame_id: str) -> tuple[struct.Struct, bytes] | None:
     """The packer of a ``wrenchd_msgs/msg/Estimate`` with this frame id, and the id's bytes."""
-    try:
-        text = frame_id.encode()
-    except UnicodeEncodeError:
+    text = _utf8(frame_id)
+    if text is None:
         return None
     at = 12 + len(text) + 1                   # after the frame id, from the end of the head
-    pads = []
+    p = []
     for size, align in ((24, 4), (1, 1), (4, 4), (8, 8), (1, 1), (24, 4)):
-        pads.append(-at % align)              # force and torque, free, score, version,
-        at += pads[-1] + size                 # restarted, external
-    p = pads
+        p.append(-at % align)                 # force and torque, free, score, version,
+        at += p[-1] + size                    # restarted, external
     return struct.Struct(f"<4siII{len(text) + 1}s{p[0]}x24s?{p[2]}xf{p[3]}xq?{p[5]}x24s"), text
 
 
@@ -236,11 +243,11 @@ def encode_estimate(stamp_ns: int, frame_id: str, wrench32: np.ndarray, free: bo
     """Little-endian CDR of a ``wrenchd_msgs/msg/Estimate`` (``wrench32`` (6,) and
     ``external32`` (6,) float32, ``score`` within float32), the bytes ``rosbags`` writes;
     None where it should decide."""
-    sec, nanosec = divmod(stamp_ns, _NS_PER_S)
+    stamp = _split_stamp(stamp_ns)
     layout = _estimate_layout(frame_id)
-    if layout is None or not 0 <= sec < 2 ** 31 or not -2 ** 63 <= model_version < 2 ** 63:
+    if stamp is None or layout is None or not -2 ** 63 <= model_version < 2 ** 63:
         return None
     packer, text = layout
-    return packer.pack(_HEAD, sec, nanosec, len(text) + 1, text,
+    return packer.pack(_HEAD, *stamp, len(text) + 1, text,
                        wrench32.astype("<f4").tobytes(), free, score, model_version,
                        restarted, external32.astype("<f4").tobytes())

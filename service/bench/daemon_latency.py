@@ -238,8 +238,9 @@ def bench_service(n_arms: int = 1, rate_hz: float = 1000.0, duration_s: float = 
         js = load_session(recording).joint_states
         m = len(js)
     stamps = [int(round(i * 1e9 / rate_hz)) for i in range(n)]
-    payloads = [encode_joint_state(check_encoding(encoding), stamps[i], js.names, js.position[i % m],
-                                   js.velocity[i % m], js.effort[i % m]) for i in range(n)]
+    payloads = [encode_joint_state(check_encoding(encoding), stamps[i], js.names,
+                                   js.position[i % m], js.velocity[i % m], js.effort[i % m])
+                for i in range(n)]
     endpoint = f"tcp/127.0.0.1:{_free_port()}"
     workdir = Path(tempfile.mkdtemp(prefix="wrenchd-bench-"))
     placement = None

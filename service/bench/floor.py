@@ -18,13 +18,13 @@ before its session opens.
 from __future__ import annotations
 
 import argparse
-import struct
 import sys
 import threading
 
 import numpy as np
 import orjson
 
+from wrenchd.adapters import cdr_wire
 from wrenchd.adapters.messages import encode_wrench
 from wrenchd.adapters.zenoh_io import ZenohConfig, open_session
 from wrenchd.service.cli.bench import realtime_setting
@@ -35,7 +35,6 @@ from wrenchd.service.runtime.scheduling import enter_realtime
 from wrenchd.service.runtime.settings import ArmConfig
 
 _ZERO = np.zeros(6)
-_CDR_STAMP = struct.Struct("<iI")       # sec, nanosec after CDR's 4-byte encapsulation header
 
 
 def _json_stamp(payload: bytes) -> int | None:
@@ -46,14 +45,7 @@ def _json_stamp(payload: bytes) -> int | None:
         return None
 
 
-def _cdr_stamp(payload: bytes) -> int | None:
-    if len(payload) < 12:
-        return None
-    sec, nanosec = _CDR_STAMP.unpack_from(payload, 4)
-    return sec * 1_000_000_000 + nanosec
-
-
-_STAMP_OF = {"json": _json_stamp, "cdr": _cdr_stamp}
+_STAMP_OF = {"json": _json_stamp, "cdr": cdr_wire.read_stamp}
 
 
 def _answer(pub, items, encoding: str) -> None:

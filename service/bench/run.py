@@ -120,10 +120,10 @@ def bench_arm_thread(duration_s: float = 20.0, model: str = "seal",
     """Per-sample cost of the daemon's work for one arm, without zenoh: decode the joint
     state (``encoding``: JSON or CDR), run the pipeline (frozen: no adaptation rounds),
     encode the wrench, hand both log records to the log writer (``log``); and, apart
-    (``log_writer``), the log writer process's work: format and write them to MCAP. Percentiles per stage [us], one ``trocar``
-    session at 200 Hz, or ``recording`` (a file ``wrenchd replay`` reads) played again until
-    it lasts ``duration_s``; step 1 ``model`` (a shipped name or a bundle directory, as the
-    daemon's ``[model] step1``).
+    (``log_writer``), the log writer process's work: format and write them to MCAP.
+    Percentiles per stage [us], one ``trocar`` session at 200 Hz, or ``recording`` (a file
+    ``wrenchd replay`` reads) played again until it lasts ``duration_s``; step 1 ``model``
+    (a shipped name or a bundle directory, as the daemon's ``[model] step1``).
 
     After a first block of ``PACED_BLOCK`` samples (warming up, counted in neither), the
     samples go in blocks of as many, every other one paced as the daemon sees them at 1 kHz
