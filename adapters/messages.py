@@ -9,8 +9,8 @@ Both encodings carry ``sensor_msgs/JointState`` and ``geometry_msgs/WrenchStampe
 * ``cdr``: the ROS 2 serialisation (little-endian CDR with its 4-byte encapsulation header),
   exactly what a ROS 2 node bridged to zenoh (``zenoh-bridge-ros2dds``, ``rmw_zenoh``)
   publishes, through the ``rosbags`` type store of :mod:`wrenchd.adapters.ros2_msgs` (ROS 2
-  Humble definitions; the per-sample joint state and wrench through the same bytes'
-  fast paths in :mod:`wrenchd.adapters.cdr_wire`). CDR has
+  Humble definitions; the per-sample joint state and wrench go through
+  :mod:`wrenchd.adapters.cdr_wire`, the same bytes in a few ``struct`` calls). CDR has
   no room for extra fields: the gate flag and model version of a CDR arm go to the events and
   status keys and to the MCAP log.
 
@@ -119,23 +119,6 @@ def _decode_json_joint_state(payload: bytes) -> JointSample:
         _vector(message, "position"), _vector(message, "velocity"), _vector(message, "effort")))
 
 
-def _finite_vector(values, what: str) -> np.ndarray:
-    v = np.ascontiguousarray(values, dtype=np.float64)
-    if not np.isfinite(v).all():
-        raise ValueError(f"{what} must be finite to be encoded as JSON")
-    return v
-
-
-def _json_joint_state(stamp_ns: int, frame_id: str, names, position, velocity, effort) -> bytes:
-    sec, nanosec = split_ns(stamp_ns)
-    return orjson.dumps({"header": {"stamp": {"sec": sec, "nanosec": nanosec},
-                                    "frame_id": frame_id},
-                         "name": list(names),
-                         "position": _finite_vector(position, "position"),
-                         "velocity": _finite_vector(velocity, "velocity"),
-                         "effort": _finite_vector(effort, "effort")}, option=_NUMPY)
-
-
 def _finite_floats(values, what: str) -> list[float]:
     """``values`` as Python floats, all finite (a finite sum proves every term finite: one
     call per sample instead of NumPy's test)."""
@@ -143,6 +126,16 @@ def _finite_floats(values, what: str) -> list[float]:
     if not math.isfinite(sum(f)) and not all(map(math.isfinite, f)):
         raise ValueError(f"{what} must be finite to be encoded as JSON")
     return f
+
+
+def _json_joint_state(stamp_ns: int, frame_id: str, names, position, velocity, effort) -> bytes:
+    sec, nanosec = split_ns(stamp_ns)
+    return orjson.dumps({"header": {"stamp": {"sec": sec, "nanosec": nanosec},
+                                    "frame_id": frame_id},
+                         "name": list(names),
+                         "position": _finite_floats(position, "position"),
+                         "velocity": _finite_floats(velocity, "velocity"),
+                         "effort": _finite_floats(effort, "effort")})
 
 
 def _json_wrench(stamp_ns: int, frame_id: str, wrench: np.ndarray,
